@@ -1,0 +1,3 @@
+from sianms_cli.cli import main
+
+main()

@@ -1,0 +1,312 @@
+"""The street the ego drives: a route of straight and curved segments, its cross-section,
+the crossing streets of intersections, and the ground's look and LiDAR reflectivity.
+
+Route coordinates: ``s`` is the arc length along the route centreline (metres) and ``d``
+the signed lateral offset, positive to the left of the direction of travel. The ground is
+the plane z = 0 of the global frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+LANE_WIDTH = 3.5
+BIKE_LANE_WIDTH = 1.5
+PARKING_WIDTH = 2.4
+PAVEMENT_WIDTH = 4.5
+CROSSING_HALF_WIDTH = 7.0
+ZEBRA_DEPTH = 4.0
+STOP_LINE_GAP = 1.0
+
+
+@dataclass(frozen=True)
+class CrossSection:
+    """Lanes from the centreline outwards, the same on both sides of the road."""
+
+    lanes_per_direction: int
+    parking: bool
+    drive_side: int  # +1: traffic keeps right (Boston), -1: keeps left (Singapore)
+
+    @property
+    def bike_lane_inner(self) -> float:
+        return self.lanes_per_direction * LANE_WIDTH
+
+    @property
+    def parking_inner(self) -> float:
+        return self.bike_lane_inner + BIKE_LANE_WIDTH
+
+    @property
+    def kerb(self) -> float:
+        """Distance from the centreline to the kerb: where the pavement starts."""
+        return self.parking_inner + (PARKING_WIDTH if self.parking else 0.0)
+
+    @property
+    def pavement_outer(self) -> float:
+        return self.kerb + PAVEMENT_WIDTH
+
+    def lane_center(self, lane: int, direction: int) -> float:
+        """Lateral offset ``d`` of driving lane ``lane`` (0 = next to the centreline) used by
+        traffic moving in ``direction`` (+1 along increasing ``s``, -1 against it)."""
+        side = -self.drive_side * direction
+        return side * (lane + 0.5) * LANE_WIDTH
+
+
+@dataclass(frozen=True)
+class Route:
+    """A centreline made of constant-curvature segments.
+
+    ``lengths (S,)`` and ``curvatures (S,)`` (1/m, positive turns left) describe the
+    segments in order, starting at ``origin (2,)`` with heading ``heading0`` (radians,
+    counter-clockwise from global +x).
+    """
+
+    origin: np.ndarray
+    heading0: float
+    lengths: np.ndarray
+    curvatures: np.ndarray
+
+    @property
+    def starts(self) -> np.ndarray:
+        """(S,) arc length at which each segment starts."""
+        return np.concatenate([[0.0], np.cumsum(self.lengths)[:-1]])
+
+    @property
+    def length(self) -> float:
+        return float(np.sum(self.lengths))
+
+    def _segment_starts(self) -> tuple[np.ndarray, np.ndarray]:
+        """Start point (S,2) and start heading (S,) of every segment."""
+        headings = self.heading0 + np.concatenate(
+            [[0.0], np.cumsum(self.lengths * self.curvatures)[:-1]]
+        )
+        points = np.empty((len(self.lengths), 2))
+        point = np.asarray(self.origin, dtype=float)
+        for i, (length, curvature, heading) in enumerate(zip(self.lengths, self.curvatures, headings)):
+            points[i] = point
+            point = point + _advance(length, curvature, heading)
+        return points, headings
+
+    def pose(self, s: np.ndarray, d: np.ndarray | float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Global xy (N,2) and heading (N,) of the points at arc length ``s`` and offset ``d``.
+
+        ``s`` outside [0, length] extends the first or last segment.
+        """
+        s = np.atleast_1d(np.asarray(s, dtype=float))
+        points, headings = self._segment_starts()
+        index = np.clip(np.searchsorted(self.starts, s, side="right") - 1, 0, len(self.lengths) - 1)
+        u = s - self.starts[index]
+        curvature = self.curvatures[index]
+        start_heading = headings[index]
+        xy = points[index] + _advance(u, curvature, start_heading).T.reshape(-1, 2)
+        heading = start_heading + curvature * u
+        normal = np.stack([-np.sin(heading), np.cos(heading)], axis=-1)
+        return xy + normal * np.asarray(d, dtype=float)[..., None], heading
+
+    def to_route_frame(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Arc length ``s`` (P,) and offset ``d`` (P,) of the nearest centreline point of each xy (P,2)."""
+        xy = np.asarray(xy, dtype=float)
+        points, headings = self._segment_starts()
+        best_s = np.zeros(len(xy))
+        best_d = np.full(len(xy), np.inf)
+        best_cost = np.full(len(xy), np.inf)
+        for start, point, heading, length, curvature in zip(
+            self.starts, points, headings, self.lengths, self.curvatures
+        ):
+            u, d = _segment_coordinates(xy, point, heading, length, curvature)
+            excess = np.maximum(np.maximum(-u, u - length), 0.0)
+            cost = np.hypot(excess, d)
+            better = cost < best_cost
+            best_cost = np.where(better, cost, best_cost)
+            best_s = np.where(better, start + np.clip(u, 0.0, length), best_s)
+            best_d = np.where(better, d, best_d)
+        return best_s, best_d
+
+
+def _advance(u: np.ndarray | float, curvature: np.ndarray | float, heading: np.ndarray | float) -> np.ndarray:
+    """Displacement (2, ...) after travelling ``u`` on a constant-curvature arc."""
+    u, curvature, heading = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (u, curvature, heading)))
+    straight = np.abs(curvature) < 1e-9
+    safe = np.where(straight, 1.0, curvature)
+    dx = np.where(straight, u * np.cos(heading), (np.sin(heading + safe * u) - np.sin(heading)) / safe)
+    dy = np.where(straight, u * np.sin(heading), (np.cos(heading) - np.cos(heading + safe * u)) / safe)
+    return np.stack([dx, dy])
+
+
+def _segment_coordinates(
+    xy: np.ndarray, start: np.ndarray, heading: float, length: float, curvature: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Unclipped arc length ``u`` along one segment and lateral offset ``d`` of points (P,2)."""
+    if abs(curvature) < 1e-9:
+        delta = xy - start
+        u = delta[:, 0] * np.cos(heading) + delta[:, 1] * np.sin(heading)
+        d = -delta[:, 0] * np.sin(heading) + delta[:, 1] * np.cos(heading)
+        return u, d
+    radius = 1.0 / curvature
+    center = start + radius * np.array([-np.sin(heading), np.cos(heading)])
+    delta = xy - center
+    start_angle = np.arctan2(*(start - center)[::-1])
+    angle = np.arctan2(delta[:, 1], delta[:, 0])
+    # Unwrap around the middle of the arc so that points before its start get u < 0.
+    middle = start_angle + curvature * length / 2
+    swept = np.mod(angle - middle + np.pi, 2 * np.pi) - np.pi + (middle - start_angle)
+    u = swept / curvature
+    d = np.sign(curvature) * (abs(radius) - np.hypot(delta[:, 0], delta[:, 1]))
+    return u, d
+
+
+@dataclass(frozen=True)
+class Intersection:
+    """A straight crossing street through the route point at arc length ``s``."""
+
+    s: float
+    center: np.ndarray  # (2,) global xy
+    heading: float  # direction of the crossing street, radians
+
+
+@dataclass(frozen=True)
+class Street:
+    """Everything about the road surface a renderer and a LiDAR need."""
+
+    route: Route
+    section: CrossSection
+    intersections: tuple[Intersection, ...]
+    center_line_yellow: bool
+
+    def crossing_coordinates(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Along (P,K) and across (P,K) coordinates of points in each crossing street's frame."""
+        if not self.intersections:
+            return np.zeros((len(xy), 0)), np.zeros((len(xy), 0))
+        centers = np.stack([i.center for i in self.intersections])
+        headings = np.array([i.heading for i in self.intersections])
+        delta = xy[:, None, :] - centers[None]
+        cos, sin = np.cos(headings), np.sin(headings)
+        along = delta[..., 0] * cos + delta[..., 1] * sin
+        across = -delta[..., 0] * sin + delta[..., 1] * cos
+        return along, across
+
+    def near_intersection(self, s: np.ndarray, margin: float) -> np.ndarray:
+        """Whether route arc lengths ``s`` lie within the crossing street plus ``margin``."""
+        s = np.asarray(s, dtype=float)
+        near = np.zeros(s.shape, dtype=bool)
+        for intersection in self.intersections:
+            near |= np.abs(s - intersection.s) < CROSSING_HALF_WIDTH + margin
+        return near
+
+    def surface(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Surface class (P,) int8, paint mask (P,) bool and yellow-paint mask (P,) bool of
+        ground points (P,2). Classes: 0 asphalt, 1 pavement, 2 verge (grass or plaza).
+        """
+        s, d = self.route.to_route_frame(xy)
+        along, across = self.crossing_coordinates(xy)
+        kerb = self.section.kerb
+        abs_d = np.abs(d)
+        on_crossing = (np.abs(across) < CROSSING_HALF_WIDTH) & (along > -150.0) & (along < 150.0)
+        crossing_pavement = (np.abs(across) < CROSSING_HALF_WIDTH + PAVEMENT_WIDTH) & (np.abs(along) > kerb)
+        in_junction = on_crossing & (np.abs(along) < kerb)
+        klass = np.full(len(xy), 2, dtype=np.int8)
+        klass[(abs_d < self.section.pavement_outer) | crossing_pavement.any(axis=1)] = 1
+        klass[(abs_d < kerb) | on_crossing.any(axis=1)] = 0
+
+        on_route_road = ~in_junction.any(axis=1) & (abs_d < kerb)
+        center_line = self._center_line(s, d) & on_route_road
+        markings = center_line | (self._lane_markings(s, d) & on_route_road) | self._zebras(s, d)
+        markings |= (on_crossing & (np.abs(along) > kerb) & _dashes(along, 3.0, 6.0) & (np.abs(across) < 0.08)).any(axis=1)
+        yellow = center_line if self.center_line_yellow else np.zeros_like(center_line)
+        return klass, markings, yellow
+
+    def _center_line(self, s: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """Double solid line (Boston style) or a single dashed line (Singapore style)."""
+        if self.center_line_yellow:
+            return np.abs(np.abs(d) - 0.15) < 0.06
+        return (np.abs(d) < 0.08) & _dashes(s, 3.0, 6.0)
+
+    def _lane_markings(self, s: np.ndarray, d: np.ndarray) -> np.ndarray:
+        section = self.section
+        abs_d = np.abs(d)
+        dividers = np.zeros(s.shape, dtype=bool)
+        for lane in range(1, section.lanes_per_direction):
+            dividers |= (np.abs(abs_d - lane * LANE_WIDTH) < 0.07) & _dashes(s, 3.0, 6.0)
+        bike_line = np.abs(abs_d - section.bike_lane_inner) < 0.08
+        parking_line = (np.abs(abs_d - section.parking_inner) < 0.06) & section.parking
+        stop_lines = np.zeros(s.shape, dtype=bool)
+        for intersection in self.intersections:
+            for sign in (-1.0, 1.0):
+                edge = intersection.s + sign * (CROSSING_HALF_WIDTH + ZEBRA_DEPTH + STOP_LINE_GAP)
+                lane_side = np.sign(d) == sign * section.drive_side
+                stop_lines |= (np.abs(s - edge) < 0.25) & lane_side & (abs_d < section.bike_lane_inner)
+        return dividers | bike_line | parking_line | stop_lines
+
+    def _zebras(self, s: np.ndarray, d: np.ndarray) -> np.ndarray:
+        zebra = np.zeros(s.shape, dtype=bool)
+        for intersection in self.intersections:
+            offset = np.abs(s - intersection.s) - CROSSING_HALF_WIDTH
+            band = (offset > 0.5) & (offset < 0.5 + ZEBRA_DEPTH - 1.0)
+            zebra |= band & (np.abs(d) < self.section.kerb) & (np.mod(d, 1.0) < 0.5)
+        return zebra
+
+    def ground_albedo(self, xy: np.ndarray) -> np.ndarray:
+        """Linear RGB albedo (P,3) in [0, 1] of ground points (P,2): asphalt, pavement, verge, paint."""
+        xy = np.asarray(xy, dtype=float)
+        klass, markings, yellow = self.surface(xy)
+        fine = value_noise(xy, 0.35, seed=11)
+        coarse = value_noise(xy, 4.0, seed=23)
+        asphalt = (0.055 + 0.03 * coarse + 0.02 * fine)[:, None] * np.array([1.0, 1.0, 1.04])
+        slab = _pavement_joints(xy)
+        pavement = (0.21 + 0.05 * coarse + 0.03 * fine - 0.06 * slab)[:, None] * np.array([1.0, 0.98, 0.94])
+        grass = (0.05 + 0.05 * coarse + 0.03 * fine)[:, None] * np.array([0.55, 1.0, 0.35])
+        plaza = (0.16 + 0.04 * coarse + 0.03 * fine)[:, None] * np.array([1.0, 0.92, 0.82])
+        verge = np.where((value_noise(xy, 40.0, seed=5) > 0.5)[:, None], grass, plaza)
+        albedo = np.where((klass == 0)[:, None], asphalt, np.where((klass == 1)[:, None], pavement, verge))
+        paint = np.where(yellow[:, None], np.array([0.7, 0.5, 0.08]), np.array([0.75, 0.75, 0.72]))
+        albedo = np.where(markings[:, None], paint * (0.85 + 0.15 * fine[:, None]), albedo)
+        return np.clip(albedo, 0.0, 1.0)
+
+    def ground_reflectivity(self, xy: np.ndarray) -> np.ndarray:
+        """LiDAR reflectivity (P,) in [0, 1]: paint is retro-reflective, asphalt dark."""
+        klass, markings, _ = self.surface(np.asarray(xy, dtype=float))
+        base = np.array([0.08, 0.2, 0.14])[klass]
+        return np.where(markings, 0.65, base)
+
+
+def _dashes(u: np.ndarray, on: float, off: float) -> np.ndarray:
+    return np.mod(u, on + off) < on
+
+
+def _pavement_joints(xy: np.ndarray) -> np.ndarray:
+    """1 on the joints of a 1.5 m concrete slab grid in global axes, else 0."""
+    phase = np.mod(xy, 1.5)
+    return ((phase < 0.04).any(axis=1)).astype(float)
+
+
+def value_noise(xy: np.ndarray, scale: float, seed: int) -> np.ndarray:
+    """Smooth deterministic noise in [0, 1] over the plane, features of ``scale`` metres.
+
+    Bilinear interpolation of hashed lattice values, so the ground looks the same from
+    every camera and every frame without storing a texture.
+    """
+    grid = np.asarray(xy, dtype=float) / scale
+    cell = np.floor(grid)
+    frac = grid - cell
+    frac = frac * frac * (3.0 - 2.0 * frac)
+    ix = cell[:, 0].astype(np.int64)
+    iy = cell[:, 1].astype(np.int64)
+
+    def lattice(dx: int, dy: int) -> np.ndarray:
+        return _hash01(ix + dx, iy + dy, seed)
+
+    bottom = lattice(0, 0) * (1 - frac[:, 0]) + lattice(1, 0) * frac[:, 0]
+    top = lattice(0, 1) * (1 - frac[:, 0]) + lattice(1, 1) * frac[:, 0]
+    return bottom * (1 - frac[:, 1]) + top * frac[:, 1]
+
+
+def _hash01(ix: np.ndarray, iy: np.ndarray, seed: int) -> np.ndarray:
+    """Integer lattice hash to [0, 1) (a 64-bit mix, stable across platforms)."""
+    with np.errstate(over="ignore"):
+        h = ix.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)
+        h ^= iy.astype(np.uint64) * np.uint64(0xC2B2AE3D27D4EB4F) + np.uint64(seed)
+        h ^= h >> np.uint64(31)
+        h *= np.uint64(0xBF58476D1CE4E5B9)
+        h ^= h >> np.uint64(29)
+    return (h >> np.uint64(11)).astype(np.float64) / float(1 << 53)

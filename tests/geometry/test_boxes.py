@@ -1,0 +1,129 @@
+import numpy as np
+import pytest
+
+from sianms_cli.geometry import boxes
+from sianms_cli.geometry.boxes import box_corners, count_points_in_boxes, points_in_boxes
+from sianms_cli.geometry.quaternion import quat_to_matrix, yaw_to_quat
+
+IDENTITY = np.array([[1.0, 0.0, 0.0, 0.0]])
+YAW_180 = np.array([[0.0, 0.0, 0.0, 1.0]])  # exact matrix diag(-1, -1, 1)
+
+
+def devkit_corners(center, size, rotation):
+    """Box.corners() of the devkit, transcribed (3, 8), for one box."""
+    w, length, h = size
+    x = length / 2 * np.array([1, 1, 1, 1, -1, -1, -1, -1])
+    y = w / 2 * np.array([1, -1, -1, 1, 1, -1, -1, 1])
+    z = h / 2 * np.array([1, 1, -1, -1, 1, 1, -1, -1])
+    return quat_to_matrix(rotation) @ np.vstack([x, y, z]) + np.reshape(center, (3, 1))
+
+
+def devkit_points_in_box(corners, points):
+    """points_in_box of the devkit, transcribed, on (3, 8) corners and (3, P) points."""
+    p1, p_x, p_y, p_z = corners[:, 0], corners[:, 4], corners[:, 1], corners[:, 3]
+    i, j, k = p_x - p1, p_y - p1, p_z - p1
+    v = points - p1.reshape((-1, 1))
+    iv, jv, kv = np.dot(i, v), np.dot(j, v), np.dot(k, v)
+    mask_x = np.logical_and(0 <= iv, iv <= np.dot(i, i))
+    mask_y = np.logical_and(0 <= jv, jv <= np.dot(j, j))
+    mask_z = np.logical_and(0 <= kv, kv <= np.dot(k, k))
+    return mask_x & mask_y & mask_z
+
+
+def random_boxes(n, seed):
+    rng = np.random.default_rng(seed)
+    center = rng.uniform(-10, 10, size=(n, 3))
+    size = rng.uniform(0.5, 5.0, size=(n, 3))
+    rotation = rng.normal(size=(n, 4))
+    return center, size, rotation
+
+
+def test_corner_order_axis_aligned():
+    corners = box_corners([[1.0, 2.0, 3.0]], [[2.0, 4.0, 6.0]], IDENTITY)
+    # half extents: l/2 = 2 along x, w/2 = 1 along y, h/2 = 3 along z.
+    expected = [
+        [3, 3, 6],  # front-left-top
+        [3, 1, 6],  # front-right-top
+        [3, 1, 0],  # front-right-bottom
+        [3, 3, 0],  # front-left-bottom
+        [-1, 3, 6],  # rear-left-top
+        [-1, 1, 6],
+        [-1, 1, 0],
+        [-1, 3, 0],
+    ]
+    np.testing.assert_array_equal(corners, [expected])
+
+
+def test_corner_order_yawed():
+    corners = box_corners([[1.0, 2.0, 3.0]], [[2.0, 4.0, 6.0]], yaw_to_quat([np.pi / 2]))
+    # Heading +y: the front-left-top corner (2, 1, 3) in the box frame is (-1, 2, 3).
+    np.testing.assert_allclose(corners[0, 0], [0.0, 4.0, 6.0], atol=1e-15)
+    np.testing.assert_allclose(corners[0, 6], [2.0, 0.0, 0.0], atol=1e-15)
+
+
+def test_corners_match_devkit():
+    center, size, rotation = random_boxes(20, seed=5)
+    corners = box_corners(center, size, rotation)
+    for n in range(20):
+        np.testing.assert_allclose(
+            corners[n], devkit_corners(center[n], size[n], rotation[n]).T, atol=1e-13
+        )
+
+
+def test_box_corners_empty():
+    assert box_corners(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 4))).shape == (0, 8, 3)
+
+
+@pytest.mark.parametrize("rotation", [IDENTITY, YAW_180])
+def test_points_in_boxes_inclusive_bounds(rotation):
+    # Box spans x in [-2, 2], y in [-1, 1], z in [-1, 1] (symmetric, so yaw 180 is the same).
+    center, size = np.zeros((1, 3)), np.array([[2.0, 4.0, 2.0]])
+    points = np.array(
+        [
+            [0.0, 0.0, 0.0],
+            [2.0, 1.0, 1.0],  # a corner
+            [-2.0, -1.0, -1.0],  # the opposite corner
+            [2.0, 0.0, 0.0],  # on a face
+            [0.0, -1.0, 0.5],
+            [2.0 + 2**-20, 0.0, 0.0],
+            [0.0, -1.0 - 2**-20, 0.0],
+            [0.0, 0.0, 1.0 + 2**-20],
+        ]
+    )
+    inside = points_in_boxes(points, center, size, rotation)
+    np.testing.assert_array_equal(inside, [[True] * 5 + [False] * 3])
+
+
+def test_points_in_boxes_matches_devkit():
+    center, size, rotation = random_boxes(30, seed=6)
+    points = np.random.default_rng(7).uniform(-12, 12, size=(3000, 3))
+    inside = points_in_boxes(points, center, size, rotation)
+    assert inside.shape == (30, 3000) and inside.any()
+    for n in range(30):
+        expected = devkit_points_in_box(devkit_corners(center[n], size[n], rotation[n]), points.T)
+        np.testing.assert_array_equal(inside[n], expected)
+
+
+def test_points_in_boxes_chunking_gives_same_result(monkeypatch):
+    center, size, rotation = random_boxes(13, seed=8)
+    points = np.random.default_rng(9).uniform(-12, 12, size=(500, 3))
+    whole = points_in_boxes(points, center, size, rotation)
+    monkeypatch.setattr(boxes, "_CHUNK_BYTES", 24 * 500 * 3)  # three boxes per chunk
+    np.testing.assert_array_equal(points_in_boxes(points, center, size, rotation), whole)
+
+
+def test_points_in_boxes_empty_inputs():
+    center, size, rotation = random_boxes(3, seed=10)
+    assert points_in_boxes(np.zeros((0, 3)), center, size, rotation).shape == (3, 0)
+    empty = points_in_boxes(np.ones((4, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 4)))
+    assert empty.shape == (0, 4)
+
+
+def test_count_points_in_boxes_counts_shared_points_twice():
+    center = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    size = np.array([[2.0, 2.0, 2.0], [2.0, 2.0, 2.0]])
+    rotation = np.repeat(IDENTITY, 2, axis=0)
+    points = np.array([[0.5, 0.0, 0.0], [-0.5, 0.0, 0.0], [1.5, 0.0, 0.0], [5.0, 0.0, 0.0]])
+    counts = count_points_in_boxes(points, center, size, rotation)
+    assert counts.dtype == np.int64
+    np.testing.assert_array_equal(counts, [2, 2])

@@ -1,0 +1,111 @@
+import numpy as np
+import pytest
+
+from sianms_cli.synth.road import (
+    LANE_WIDTH,
+    CrossSection,
+    Intersection,
+    Route,
+    Street,
+    value_noise,
+)
+
+
+def _route() -> Route:
+    # 50 m straight, a left arc of radius 30 m over 40 m, then a right arc of radius 50 m.
+    return Route(np.array([100.0, 200.0]), 0.3, np.array([50.0, 40.0, 60.0]), np.array([0.0, 1 / 30, -1 / 50]))
+
+
+def test_straight_segment_pose_is_origin_plus_heading():
+    route = _route()
+    xy, heading = route.pose(np.array([0.0, 20.0]), 2.0)
+    direction = np.array([np.cos(0.3), np.sin(0.3)])
+    left = np.array([-np.sin(0.3), np.cos(0.3)])
+    np.testing.assert_allclose(xy[0], [100.0, 200.0] + 2.0 * left)
+    np.testing.assert_allclose(xy[1], [100.0, 200.0] + 20.0 * direction + 2.0 * left)
+    np.testing.assert_allclose(heading, 0.3)
+
+
+def test_arc_heading_turns_by_curvature_times_length():
+    route = _route()
+    _, heading = route.pose(np.array([90.0, 150.0]))
+    assert heading[0] == pytest.approx(0.3 + 40 / 30)
+    assert heading[1] == pytest.approx(0.3 + 40 / 30 - 60 / 50)
+
+
+def test_arc_points_stay_on_their_circle():
+    route = _route()
+    s = np.linspace(50.0, 90.0, 9)
+    xy, _ = route.pose(s, 0.0)
+    start, heading = route.pose(np.array([50.0]))
+    center = start[0] + 30.0 * np.array([-np.sin(heading[0]), np.cos(heading[0])])
+    np.testing.assert_allclose(np.hypot(*(xy - center).T), 30.0)
+
+
+def test_route_frame_inverts_pose():
+    route = _route()
+    rng = np.random.default_rng(0)
+    s = rng.uniform(1.0, 149.0, 500)
+    d = rng.uniform(-8.0, 8.0, 500)
+    xy, _ = route.pose(s, d)
+    s_back, d_back = route.to_route_frame(xy)
+    np.testing.assert_allclose(s_back, s, atol=1e-9)
+    np.testing.assert_allclose(d_back, d, atol=1e-9)
+
+
+def test_lane_centres_follow_the_drive_side():
+    right = CrossSection(lanes_per_direction=2, parking=True, drive_side=+1)
+    left = CrossSection(lanes_per_direction=2, parking=True, drive_side=-1)
+    assert right.lane_center(0, +1) == pytest.approx(-LANE_WIDTH / 2)
+    assert right.lane_center(1, -1) == pytest.approx(1.5 * LANE_WIDTH)
+    assert left.lane_center(0, +1) == pytest.approx(LANE_WIDTH / 2)
+    assert right.kerb == pytest.approx(2 * 3.5 + 1.5 + 2.4)
+
+
+def test_surface_classes_across_the_road():
+    route = Route(np.zeros(2), 0.0, np.array([400.0]), np.array([0.0]))
+    section = CrossSection(lanes_per_direction=1, parking=False, drive_side=+1)
+    street = Street(route, section, (), center_line_yellow=True)
+    kerb = section.kerb
+    xy = np.array([[100.0, 1.0], [100.0, -(kerb - 0.2)], [100.0, kerb + 1.0], [100.0, -(section.pavement_outer + 2.0)]])
+    klass, _, _ = street.surface(xy)
+    np.testing.assert_array_equal(klass, [0, 0, 1, 2])
+
+
+def test_double_yellow_centre_line_and_bright_lidar_paint():
+    route = Route(np.zeros(2), 0.0, np.array([400.0]), np.array([0.0]))
+    street = Street(route, CrossSection(1, False, +1), (), center_line_yellow=True)
+    xy = np.array([[50.0, 0.15], [50.0, -0.15], [50.0, 0.0], [50.0, 1.5]])
+    _, markings, yellow = street.surface(xy)
+    np.testing.assert_array_equal(markings, [True, True, False, False])
+    np.testing.assert_array_equal(yellow, [True, True, False, False])
+    reflectivity = street.ground_reflectivity(xy)
+    assert reflectivity[0] > 3 * reflectivity[2]
+
+
+def test_crossing_street_is_asphalt_beyond_the_pavement():
+    route = Route(np.zeros(2), 0.0, np.array([400.0]), np.array([0.0]))
+    section = CrossSection(1, True, +1)
+    crossing = Intersection(200.0, np.array([200.0, 0.0]), np.pi / 2)
+    street = Street(route, section, (crossing,), center_line_yellow=False)
+    far_along_crossing = np.array([[200.0, section.pavement_outer + 20.0], [230.0, section.pavement_outer + 20.0]])
+    klass, _, _ = street.surface(far_along_crossing)
+    np.testing.assert_array_equal(klass, [0, 2])
+    assert street.near_intersection(np.array([195.0, 260.0]), margin=1.0).tolist() == [True, False]
+
+
+def test_albedo_is_deterministic_and_in_range():
+    route = _route()
+    street = Street(route, CrossSection(2, True, -1), (), center_line_yellow=False)
+    xy = np.random.default_rng(3).uniform(-50, 250, (2000, 2))
+    a, b = street.ground_albedo(xy), street.ground_albedo(xy)
+    np.testing.assert_array_equal(a, b)
+    assert a.shape == (2000, 3) and a.min() >= 0.0 and a.max() <= 1.0
+
+
+def test_value_noise_is_continuous_and_bounded():
+    xy = np.column_stack([np.linspace(0, 10, 10001), np.full(10001, 3.3)])
+    noise = value_noise(xy, 1.0, seed=7)
+    assert noise.min() >= 0.0 and noise.max() <= 1.0
+    assert np.max(np.abs(np.diff(noise))) < 0.01  # no jumps between 1 mm steps
+    assert noise.std() > 0.05
