@@ -1,0 +1,9 @@
+"""The ``sianms`` command line: one module per subcommand, each a thin layer over the library."""
+
+from sianms_cli.cli._app import app
+from sianms_cli.cli import info, synth  # noqa: F401  (importing registers the subcommands)
+
+
+def main() -> None:
+    """Console entry point."""
+    app(prog_name="sianms")

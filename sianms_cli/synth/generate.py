@@ -1,0 +1,540 @@
+"""`sianms synth`: write a synthetic dataset in the nuScenes v1.0 on-disk format.
+
+Scenes are generated one after the other and streamed to disk: a scene is planned
+(street, traffic, ego drive), then every keyframe is sensed — the LiDAR ray-cast, the six
+cameras rendered with a depth buffer — and its sensor files written; once the scene's
+last keyframe is done its table records are appended. Memory is therefore bounded by one
+scene, whatever the number of scenes.
+
+Each scene draws from its own random generator seeded by ``(seed, scene index)``, so the
+same seed gives byte-identical files and a scene does not change when others are added.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as dt
+import os
+import shutil
+import tempfile
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+from tqdm import tqdm
+
+from sianms_cli.errors import OutputExistsError, SianmsError
+from sianms_cli.geometry.boxes import count_points_in_boxes
+from sianms_cli.geometry.quaternion import matrix_to_quat, yaw_to_quat
+from sianms_cli.geometry.transforms import apply_transform, make_transform
+from sianms_cli.nuscenes.splits import splits_for_version
+from sianms_cli.nuscenes.tables import SENSORS
+from sianms_cli.nuscenes.sensors import write_jpeg, write_pcd_bin
+from sianms_cli.nuscenes.writer import DatasetWriter, attribute_token, category_token, make_token
+from sianms_cli.synth.appearance import camera_style, sample_appearance
+from sianms_cli.synth.camera import render_camera
+from sianms_cli.synth.lidar import scan_lidar
+from sianms_cli.synth.rig import (
+    CAMERA_CHANNELS,
+    CAMERA_TRIGGER_OFFSET_US,
+    FULL_IMAGE_SIZE,
+    LIDAR_CHANNEL,
+    RIG_BOSTON,
+    RIG_SINGAPORE,
+    SensorCalibration,
+    normalised_rig,
+)
+from sianms_cli.synth.shapes import Parts, concat_parts, object_parts, place_parts
+from sianms_cli.synth.world import (
+    ANNOTATION_RADIUS,
+    KEYFRAME_HZ,
+    SCENE_SECONDS,
+    SHAPE_KIND,
+    ScenePlan,
+    plan_scene,
+)
+
+SENSOR_MODES = ("all", "none")
+RENDER_RADIUS = 130.0  # objects farther than this from the ego are not drawn or scanned
+SHAPE_MARGIN = 0.04  # annotated boxes enclose the object's surface with this margin (m)
+VISIBILITY_SCALE = 0.125  # image scale of the renders that measure visibility with --sensors none
+VISIBILITY_BINS = (0.4, 0.6, 0.8)  # upper bounds of visibility tokens "1", "2", "3"
+
+SENSOR_TOKENS = {sensor.channel: sensor.token for sensor in SENSORS}
+LOCATIONS = {  # location -> (vehicle, rig, drive side, UTC offset)
+    "boston-seaport": ("n008", RIG_BOSTON, +1, "-0400"),
+    "singapore-onenorth": ("n015", RIG_SINGAPORE, -1, "+0800"),
+    "singapore-queenstown": ("n015", RIG_SINGAPORE, -1, "+0800"),
+    "singapore-hollandvillage": ("n015", RIG_SINGAPORE, -1, "+0800"),
+}
+LOCATION_SHARES = (0.55, 0.215, 0.135, 0.10)  # keyframes by location, nuScenes paper §2
+
+
+@dataclass(frozen=True)
+class SynthConfig:
+    """What `sianms synth` writes. Defaults give a v1.0-mini-like dataset."""
+
+    version: str = "v1.0-mini"
+    scenes: int | None = None  # None: 10 for v1.0-mini, required otherwise
+    image_scale: float = 0.5
+    seed: int = 0
+    sensors: str = "all"
+    scene_seconds: float = SCENE_SECONDS  # shorter scenes are the first keyframes of full ones
+
+    @property
+    def keyframes(self) -> int:
+        return int(round(self.scene_seconds * KEYFRAME_HZ))
+
+    def scene_names(self) -> list[str]:
+        """Scene names, chosen so the devkit's predefined splits resolve (see module doc)."""
+        return scene_names_for(self.version, self.scenes)
+
+
+def scene_names_for(version: str, count: int | None) -> list[str]:
+    """Scene names for ``count`` scenes of ``version``.
+
+    v1.0-mini: the ten real mini scene names (sorted; any first N include mini_train and,
+    from N = 2, mini_val scenes). v1.0-trainval / v1.0-test: names from the devkit's
+    train and val lists (test list for v1.0-test), val getting 150/850 of them and at
+    least one from two scenes on. Any other version: ``scene-0001`` onwards, split by
+    the ``splits.json`` written beside the tables.
+    """
+    if count is not None and count < 1:
+        raise SianmsError(f"--scenes must be at least 1, got {count}")
+    official = splits_for_version(version)
+    if version.endswith("mini"):
+        names = sorted(official["mini_train"] + official["mini_val"])
+        if count is not None and count > len(names):
+            raise SianmsError(f"{version} has {len(names)} scenes; --scenes {count} asks for more")
+        return names[: count or len(names)]
+    if count is None:
+        raise SianmsError(f"--scenes is required for version {version}")
+    if version.endswith("test"):
+        return official["test"][:count]
+    if version.endswith("trainval"):
+        val_count = min(len(official["val"]), max(round(count * 150 / 850), 1 if count >= 2 else 0))
+        train_count = count - val_count
+        if train_count > len(official["train"]):
+            raise SianmsError(f"{version} has {len(official['train'])} train scenes; --scenes {count} asks for more")
+        return sorted(official["train"][:train_count] + official["val"][:val_count])
+    return [f"scene-{i:04d}" for i in range(1, count + 1)]
+
+
+def custom_splits(names: list[str]) -> dict[str, list[str]]:
+    """``splits.json`` content for a version the devkit has no predefined splits for."""
+    val_count = max(1, round(len(names) * 0.2)) if len(names) >= 2 else 0
+    return {"synth_train": names[: len(names) - val_count], "synth_val": names[len(names) - val_count:]}
+
+
+def synthesize(
+    out: Path,
+    config: SynthConfig,
+    *,
+    overwrite: bool = False,
+    progress: bool = True,
+    workers: int = 1,
+) -> Path:
+    """Write the dataset to ``out`` (the dataroot) and return it.
+
+    Everything is written to a staging folder beside ``out`` and moved into place when
+    complete, so an interrupted run never leaves a dataroot that looks finished.
+    ``workers`` processes sense scenes in parallel; records are still written in scene
+    order, so the output does not depend on the number of workers.
+    """
+    if not 0 < config.scene_seconds <= SCENE_SECONDS or config.keyframes < 1:
+        raise SianmsError(f"--scene-seconds must be in (0, {SCENE_SECONDS:g}], got {config.scene_seconds}")
+    if workers < 1:
+        raise SianmsError(f"--workers must be at least 1, got {workers}")
+    if config.sensors not in SENSOR_MODES:
+        raise SianmsError(f"--sensors must be one of {', '.join(SENSOR_MODES)}, got '{config.sensors}'")
+    if not 0.05 <= config.image_scale <= 1.0:
+        raise SianmsError(f"--image-scale must be in [0.05, 1], got {config.image_scale}")
+    names = config.scene_names()
+    out = Path(out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:
+        raise OutputExistsError(f"{out}: exists and is not empty; pass --overwrite to replace it")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
+    try:
+        with DatasetWriter(staging, config.version) as writer:
+            writer.add_static_tables()
+            if not splits_for_version(config.version):
+                writer.write_splits(custom_splits(names))
+            _write_maps(writer, config)
+            jobs = [(staging, config, index, name) for index, name in enumerate(names)]
+            with tqdm(total=len(names) * config.keyframes, unit="sample", desc="synth",
+                      disable=not progress) as bar:
+                for records in _run_scenes(jobs, workers):
+                    for table, record in records:
+                        writer.add(table, record)
+                    bar.update(config.keyframes)
+        _move_into_place(staging, out)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return out
+
+
+def _run_scenes(jobs: list[tuple], workers: int) -> Iterator[list[tuple[str, dict]]]:
+    """Records of every scene, in scene order, sensed in ``workers`` processes."""
+    if workers == 1 or len(jobs) == 1:
+        yield from (_scene_records(*job) for job in jobs)
+        return
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        yield from pool.map(_scene_records, *zip(*jobs))
+
+
+def _move_into_place(staging: Path, out: Path) -> None:
+    if out.exists():
+        trash = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
+        os.replace(out, trash / out.name)
+        os.replace(staging, out)
+        shutil.rmtree(trash, ignore_errors=True)
+    else:
+        os.replace(staging, out)
+
+
+def _write_maps(writer: DatasetWriter, config: SynthConfig) -> None:
+    """One map record per location, listing the logs (one per scene) recorded there."""
+    by_location: dict[str, list[str]] = {location: [] for location in LOCATIONS}
+    for index, name in enumerate(config.scene_names()):
+        by_location[_scene_location(config.seed, index)].append(_log_token(config.seed, name))
+    for location, logs in by_location.items():
+        writer.add_map(make_token("map", location), logs)
+
+
+def _scene_rng(seed: int, index: int, stream: str) -> np.random.Generator:
+    """Independent generators per scene and purpose, stable when other code draws more."""
+    return np.random.default_rng([seed, index, sum(map(ord, stream))])
+
+
+def _scene_location(seed: int, index: int) -> str:
+    rng = _scene_rng(seed, index, "location")
+    return str(rng.choice(list(LOCATIONS), p=LOCATION_SHARES))
+
+
+def _log_token(seed: int, name: str) -> str:
+    return make_token("log", seed, name)
+
+
+@dataclass
+class _Frame:
+    """What a keyframe contributes to the annotation table, before the scene is complete."""
+
+    annotated: np.ndarray  # (N,) bool: agent within the annotation radius
+    center: np.ndarray  # (N,3)
+    yaw: np.ndarray  # (N,)
+    attributes: np.ndarray  # (N,) names
+    lidar_points: np.ndarray  # (N,) int64 points inside each box
+    visibility: np.ndarray  # (N,) visible fraction across all cameras, NaN when unseen
+
+
+def _scene_records(staging: Path, config: SynthConfig, index: int, name: str) -> list[tuple[str, dict]]:
+    """Sense every keyframe of one scene, writing its sensor files; return its table records."""
+    return list(_scene_record_stream(staging, config, index, name))
+
+
+def _scene_record_stream(staging: Path, config: SynthConfig, index: int, name: str) -> Iterator[tuple[str, dict]]:
+    seed = config.seed
+    location = _scene_location(seed, index)
+    vehicle, rig, drive_side, utc = LOCATIONS[location]
+    rig = _perturbed_rig(normalised_rig(rig), _scene_rng(seed, index, "calibration"))
+    plan = plan_scene(_scene_rng(seed, index, "plan"), drive_side)
+    start = _scene_start(seed, index)
+    logfile = f"{vehicle}-{start.strftime('%Y-%m-%d-%H-%M-%S')}{utc}"
+    start_us = int(start.timestamp() * 1e6)
+    log_token = _log_token(seed, name)
+    yield "log", {"token": log_token, "logfile": logfile, "vehicle": vehicle,
+                  "date_captured": start.strftime("%Y-%m-%d"), "location": location}
+
+    calibration_tokens = {c.channel: make_token("calibrated_sensor", seed, name, c.channel) for c in rig}
+    scale = config.image_scale
+    image_size = (round(FULL_IMAGE_SIZE[0] * scale), round(FULL_IMAGE_SIZE[1] * scale))
+    for calibration in rig:
+        camera = calibration.channel != LIDAR_CHANNEL
+        yield "calibrated_sensor", {
+            "token": calibration_tokens[calibration.channel],
+            "sensor_token": SENSOR_TOKENS[calibration.channel],
+            "translation": list(calibration.translation),
+            "rotation": list(calibration.rotation),
+            "camera_intrinsic": calibration.intrinsic(scale).tolist() if camera else [],
+        }
+
+    scene = _SceneSensing(plan, rig, config, index, staging, logfile, start_us)
+    n_keyframes = config.keyframes
+    frames = []
+    sample_tokens = [make_token("sample", seed, name, k) for k in range(n_keyframes)]
+    scene_token = make_token("scene", seed, name)
+    sample_data_records: dict[str, list[dict]] = {channel: [] for channel in CAMERA_CHANNELS + (LIDAR_CHANNEL,)}
+    for k in range(n_keyframes):
+        frame, records = scene.sense_keyframe(k, sample_tokens[k], calibration_tokens, image_size)
+        frames.append(frame)
+        for channel, (sample_data, ego_pose) in records.items():
+            sample_data_records[channel].append(sample_data)
+            yield "ego_pose", ego_pose
+
+    for k, token in enumerate(sample_tokens):
+        yield "sample", {
+            "token": token,
+            "timestamp": start_us + _keyframe_offset_us(k),
+            "scene_token": scene_token,
+            "prev": sample_tokens[k - 1] if k > 0 else "",
+            "next": sample_tokens[k + 1] if k + 1 < n_keyframes else "",
+        }
+    for channel_records in sample_data_records.values():
+        for k, record in enumerate(channel_records):
+            record["prev"] = channel_records[k - 1]["token"] if k > 0 else ""
+            record["next"] = channel_records[k + 1]["token"] if k + 1 < len(channel_records) else ""
+            yield "sample_data", record
+    yield from _annotation_records(plan, frames, sample_tokens, seed, name)
+    yield "scene", {
+        "token": scene_token,
+        "name": name,
+        "description": _describe(plan, location),
+        "log_token": log_token,
+        "nbr_samples": n_keyframes,
+        "first_sample_token": sample_tokens[0],
+        "last_sample_token": sample_tokens[-1],
+    }
+
+
+def _keyframe_offset_us(k: int) -> int:
+    return int(round(k * 1e6 / KEYFRAME_HZ))
+
+
+def _scene_start(seed: int, index: int) -> dt.datetime:
+    """A plausible capture time in 2018, daytime (07:00-18:00)."""
+    rng = _scene_rng(seed, index, "time")
+    day = dt.datetime(2018, 5, 1) + dt.timedelta(days=int(rng.integers(0, 180)))
+    return day + dt.timedelta(seconds=int(rng.integers(7 * 3600, 18 * 3600)))
+
+
+def _perturbed_rig(rig: tuple[SensorCalibration, ...], rng: np.random.Generator) -> tuple[SensorCalibration, ...]:
+    """Per-log calibration: real rigs differ by a few millimetres and tenths of a degree."""
+    perturbed = []
+    for calibration in rig:
+        translation = np.asarray(calibration.translation) + rng.normal(0.0, 0.005, 3)
+        rotation = np.asarray(calibration.rotation) + rng.normal(0.0, 0.0015, 4)
+        rotation /= np.linalg.norm(rotation)
+        perturbed.append(dataclasses.replace(
+            calibration,
+            translation=tuple(float(v) for v in translation),
+            rotation=tuple(float(v) for v in rotation),
+        ))
+    return tuple(perturbed)
+
+
+def _describe(plan: ScenePlan, location: str) -> str:
+    parts = [f"{'Two lanes' if plan.street.section.lanes_per_direction == 2 else 'One lane'} each way"]
+    if plan.street.intersections:
+        parts.append("intersection")
+    if plan.roadworks:
+        parts.append("roadworks with barriers and cones")
+    if plan.ego.speed == 0.0:
+        parts.append("ego waiting")
+    parts.append("busy" if plan.busyness > 0.7 else "light traffic")
+    return f"{', '.join(parts)}, {location.split('-')[0].capitalize()}"
+
+
+class _SceneSensing:
+    """The sensors of one scene: poses, parts of every object, renders and scans."""
+
+    def __init__(self, plan: ScenePlan, rig, config: SynthConfig, index: int, staging: Path,
+                 logfile: str, start_us: int) -> None:
+        self.plan = plan
+        self.config = config
+        self.staging = staging
+        self.logfile = logfile
+        self.start_us = start_us
+        self.calibration = {c.channel: c for c in rig}
+        rng = _scene_rng(config.seed, index, "appearance")
+        agents = plan.agents
+        self.appearances = [
+            sample_appearance(SHAPE_KIND[category], rng, rider=bool(rider))
+            for category, rider in zip(agents.category, agents.rider)
+        ]
+        self.local_parts = concat_parts([
+            _owned(object_parts(SHAPE_KIND[category], _shape_size(size), appearance), owner)
+            for owner, (category, size, appearance) in enumerate(zip(agents.category, agents.size, self.appearances))
+        ])
+        self.scenery = concat_parts([
+            _owned(object_parts("building", b.size, sample_appearance("building", rng)), -1, b.center, b.yaw)
+            for b in plan.buildings
+        ])
+        style_rng = _scene_rng(config.seed, index, "camera-style")
+        self.styles = {channel: camera_style(style_rng) for channel in CAMERA_CHANNELS}
+        self.sun = _sun_direction(_scene_rng(config.seed, index, "sun"))
+        self.noise_rng = _scene_rng(config.seed, index, "sensor-noise")
+
+    def sense_keyframe(self, k: int, sample_token: str, calibration_tokens: dict, image_size) -> tuple[_Frame, dict]:
+        """LiDAR scan and camera renders of keyframe ``k``; writes the sensor files."""
+        plan = self.plan
+        t = k / KEYFRAME_HZ
+        timestamp = self.start_us + _keyframe_offset_us(k)
+        center, yaw, speed = plan.agents.pose(plan.route, t)
+        ego_to_global = self._ego_to_global(t)
+        distance = np.hypot(*(center[:, :2] - ego_to_global[:2, 3]).T)
+        near = distance < RENDER_RADIUS
+
+        records = {}
+        lidar = self.calibration[LIDAR_CHANNEL]
+        lidar_to_global = ego_to_global @ make_transform(lidar.rotation, lidar.translation)
+        scan = scan_lidar(self._parts_at(center, yaw, near), lidar_to_global, self.noise_rng,
+                          ground_reflectivity=plan.street.ground_reflectivity)
+        points_global = apply_transform(lidar_to_global, scan.points[:, :3])
+        lidar_points = np.zeros(len(center), dtype=np.int64)
+        lidar_points[near] = count_points_in_boxes(points_global, center[near], plan.agents.size[near],
+                                                   yaw_to_quat(yaw[near]))
+        records[LIDAR_CHANNEL] = self._sample_data(LIDAR_CHANNEL, sample_token, timestamp, ego_to_global,
+                                                   calibration_tokens, (0, 0), scan.points)
+
+        visible = np.zeros(len(center))
+        covered = np.zeros(len(center))
+        for channel in CAMERA_CHANNELS:
+            camera_time_us = timestamp + CAMERA_TRIGGER_OFFSET_US[channel]
+            t_camera = (camera_time_us - self.start_us) / 1e6
+            center_c, yaw_c, _ = plan.agents.pose(plan.route, t_camera)
+            ego_c = self._ego_to_global(t_camera)
+            render = self._render(channel, self._parts_at(center_c, yaw_c, near), ego_c, image_size)
+            visible += render.visible_pixels
+            covered += render.object_pixels
+            records[channel] = self._sample_data(channel, sample_token, camera_time_us, ego_c,
+                                                 calibration_tokens, image_size,
+                                                 render.image if self.config.sensors == "all" else None)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            visibility = np.where(covered > 0, visible / covered, np.nan)
+        frame = _Frame(distance < ANNOTATION_RADIUS, center, yaw, plan.agents.attributes(speed),
+                       lidar_points, visibility)
+        return frame, records
+
+    def _ego_to_global(self, t: float) -> np.ndarray:
+        xy, yaw = self.plan.ego.pose(self.plan.route, t)
+        return make_transform(yaw_to_quat(np.array(yaw)), np.array([xy[0], xy[1], 0.0]))
+
+    def _parts_at(self, center: np.ndarray, yaw: np.ndarray, near: np.ndarray) -> Parts:
+        """Every near object's parts posed in the global frame, plus the buildings."""
+        local = self.local_parts
+        keep = near[local.owner]
+        owner = local.owner[keep]
+        cos, sin = np.cos(yaw[owner]), np.sin(yaw[owner])
+        lc = local.center[keep]
+        world = np.column_stack([cos * lc[:, 0] - sin * lc[:, 1], sin * lc[:, 0] + cos * lc[:, 1], lc[:, 2]])
+        posed = dataclasses.replace(
+            local,
+            center=world + center[owner],
+            half_size=local.half_size[keep],
+            yaw=local.yaw[keep] + yaw[owner],
+            owner=owner,
+            material=local.material[keep],
+            albedo=None if local.albedo is None else local.albedo[keep],
+        )
+        return concat_parts([posed, self.scenery])
+
+    def _render(self, channel: str, parts: Parts, ego_to_global: np.ndarray, image_size):
+        calibration = self.calibration[channel]
+        cam_to_global = ego_to_global @ make_transform(calibration.rotation, calibration.translation)
+        scale = self.config.image_scale if self.config.sensors == "all" else VISIBILITY_SCALE
+        width, height = round(FULL_IMAGE_SIZE[0] * scale), round(FULL_IMAGE_SIZE[1] * scale)
+        return render_camera(parts, self.appearances, self.plan.street.ground_albedo,
+                             calibration.intrinsic(scale), cam_to_global, width, height,
+                             self.styles[channel], self.sun, len(self.appearances), self.noise_rng)
+
+    def _sample_data(self, channel, sample_token, timestamp, ego_to_global, calibration_tokens, image_size, data):
+        """sample_data and ego_pose records of one sensor reading; writes its file."""
+        token = make_token("sample_data", sample_token, channel)
+        lidar = channel == LIDAR_CHANNEL
+        extension = "pcd.bin" if lidar else "jpg"
+        filename = f"samples/{channel}/{self.logfile}__{channel}__{timestamp}.{extension}"
+        if data is not None and self.config.sensors == "all":
+            path = self.staging / filename
+            path.parent.mkdir(parents=True, exist_ok=True)
+            (write_pcd_bin if lidar else write_jpeg)(path, data)
+        ego_pose = {
+            "token": token,
+            "timestamp": timestamp,
+            "rotation": [float(v) for v in matrix_to_quat(ego_to_global[:3, :3])],
+            "translation": [float(v) for v in ego_to_global[:3, 3]],
+        }
+        sample_data = {
+            "token": token,
+            "sample_token": sample_token,
+            "ego_pose_token": token,
+            "calibrated_sensor_token": calibration_tokens[channel],
+            "timestamp": timestamp,
+            "fileformat": "pcd" if lidar else "jpg",
+            "is_key_frame": True,
+            "height": 0 if lidar else image_size[1],
+            "width": 0 if lidar else image_size[0],
+            "filename": filename,
+            "prev": "",
+            "next": "",
+        }
+        return sample_data, ego_pose
+
+
+def _owned(parts: Parts, owner: int, center=None, yaw: float = 0.0) -> Parts:
+    """Parts of one object tagged with its owner; scenery is posed once here."""
+    if center is None:
+        return dataclasses.replace(parts, owner=np.full(len(parts.owner), owner, dtype=np.int32))
+    return place_parts(parts, np.array([center[0], center[1], 0.0]), yaw, owner)
+
+
+def _shape_size(size_wlh: np.ndarray) -> np.ndarray:
+    """The object's own extent inside its annotated box (annotators enclose the surface)."""
+    return np.asarray(size_wlh) - np.array([2 * SHAPE_MARGIN, 2 * SHAPE_MARGIN, SHAPE_MARGIN])
+
+
+def _sun_direction(rng: np.random.Generator) -> np.ndarray:
+    """Unit vector towards the sun: elevation 25-70 degrees, any azimuth."""
+    elevation = rng.uniform(np.radians(25), np.radians(70))
+    azimuth = rng.uniform(-np.pi, np.pi)
+    return np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)])
+
+
+def _visibility_token(fraction: np.ndarray) -> np.ndarray:
+    """nuScenes visibility token "1".."4" (0-40, 40-60, 60-80, 80-100 % visible); unseen -> "1"."""
+    return np.array([str(i) for i in np.digitize(np.nan_to_num(fraction, nan=0.0), VISIBILITY_BINS) + 1])
+
+
+def _annotation_records(plan: ScenePlan, frames: list[_Frame], sample_tokens: list[str], seed: int, name: str):
+    """sample_annotation and instance records of a scene.
+
+    An object is annotated in the keyframes where it lies within the annotation radius,
+    provided the LiDAR saw it in at least one of them: annotators keep an object through
+    a temporary occlusion (hence some boxes with no point, as in nuScenes) but never
+    annotate one nothing saw.
+    """
+    annotated = np.stack([f.annotated for f in frames])  # (K, N)
+    points = np.stack([f.lidar_points for f in frames])
+    keep = annotated & (points * annotated).sum(axis=0, keepdims=True).astype(bool)
+    agents = plan.agents
+    for owner in np.flatnonzero(keep.any(axis=0)):
+        keyframes = np.flatnonzero(keep[:, owner])
+        instance = make_token("instance", seed, name, int(owner))
+        tokens = [make_token("sample_annotation", instance, int(k)) for k in keyframes]
+        for j, k in enumerate(keyframes):
+            frame = frames[k]
+            attribute = frame.attributes[owner]
+            yield "sample_annotation", {
+                "token": tokens[j],
+                "sample_token": sample_tokens[k],
+                "instance_token": instance,
+                "visibility_token": str(_visibility_token(frame.visibility[owner:owner + 1])[0]),
+                "attribute_tokens": [attribute_token(attribute)] if attribute else [],
+                "translation": [float(v) for v in frame.center[owner]],
+                "size": [float(v) for v in agents.size[owner]],
+                "rotation": [float(v) for v in yaw_to_quat(np.array(frame.yaw[owner]))],
+                "prev": tokens[j - 1] if j > 0 else "",
+                "next": tokens[j + 1] if j + 1 < len(tokens) else "",
+                "num_lidar_pts": int(frame.lidar_points[owner]),
+                "num_radar_pts": 0,
+            }
+        yield "instance", {
+            "token": instance,
+            "category_token": category_token(agents.category[owner]),
+            "nbr_annotations": len(tokens),
+            "first_annotation_token": tokens[0],
+            "last_annotation_token": tokens[-1],
+        }

@@ -1,0 +1,411 @@
+"""Solid shapes of the synthetic world as sets of yaw-rotated cuboid parts.
+
+Every object is built in its local frame (annotation box centre at the origin, x forward
+along the length l, y left along the width w, z up along the height h) from a few cuboid
+parts, then placed in the global frame. The union of an object's parts fills its
+w x l x h annotation box exactly, as nuScenes cuboids are drawn tight to the LiDAR points.
+
+Each part carries a material (an index into `MATERIALS`) and a linear albedo baked from
+the object's appearance; the renderer adds the procedural detail (window grids, pillars,
+stripes, decals) from the material and the hit position in the part's frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sianms_cli.synth.appearance import BACKPACK, TWO_TONE_ROOF, Appearance
+
+MATERIALS = (
+    "paint",        # owner's body colour; carries the owner's pattern (stripe, decal, lower body)
+    "paint2",       # owner's secondary colour (cargo box, rider helmet, backpack)
+    "greenhouse",   # glazed volume: glass panes with pillars and a roof in the part's albedo
+    "tyre",
+    "headlight",
+    "taillight",
+    "plate",
+    "trim",         # dark plastic and rubber: bumpers, seats, handlebars, chassis
+    "metal",        # bare metal: engines, forks, poles
+    "cloth",
+    "skin",
+    "hair",
+    "cone",         # traffic-cone orange
+    "reflector",    # retro-reflective white band
+    "concrete",
+    "barrier_stripes",  # red and white plastic barrier, stripes along the part's y
+    "facade",       # building wall with a window grid
+)
+PAINT, PAINT2, GREENHOUSE, TYRE, HEADLIGHT, TAILLIGHT, PLATE, TRIM, METAL, CLOTH, SKIN, \
+    HAIR, CONE, REFLECTOR, CONCRETE, BARRIER_STRIPES, FACADE = range(len(MATERIALS))
+
+# Linear albedo of each material when no appearance colour is baked in.
+MATERIAL_ALBEDO = np.array([
+    [0.50, 0.50, 0.50],  # paint
+    [0.30, 0.30, 0.30],  # paint2
+    [0.05, 0.05, 0.05],  # greenhouse frame
+    [0.025, 0.025, 0.025],  # tyre
+    [0.85, 0.85, 0.80],  # headlight
+    [0.60, 0.03, 0.02],  # taillight
+    [0.80, 0.80, 0.75],  # plate
+    [0.035, 0.035, 0.04],  # trim
+    [0.30, 0.30, 0.32],  # metal
+    [0.20, 0.20, 0.20],  # cloth
+    [0.45, 0.30, 0.22],  # skin
+    [0.04, 0.03, 0.02],  # hair
+    [0.80, 0.20, 0.02],  # cone
+    [0.85, 0.85, 0.85],  # reflector
+    [0.40, 0.39, 0.36],  # concrete
+    [0.55, 0.04, 0.03],  # barrier stripes (red; the others are white)
+    [0.40, 0.36, 0.30],  # facade
+], dtype=np.float32)
+
+KINDS = ("car", "truck", "bus", "pedestrian", "bicycle", "motorcycle", "barrier",
+         "traffic_cone", "building")
+
+
+@dataclass(frozen=True)
+class Parts:
+    """M cuboid parts, aligned arrays.
+
+    center (M,3) float64 metres, in the frame of the caller (object-local or global);
+    half_size (M,3) half extents along the part's own x (forward), y (left), z (up);
+    yaw (M,) radians about +z; owner (M,) int32 object index, -1 for static scenery;
+    material (M,) int16 index into `MATERIALS`; albedo (M,3) float32 linear RGB in [0, 1],
+    filled from `MATERIAL_ALBEDO` when not given.
+    """
+
+    center: np.ndarray
+    half_size: np.ndarray
+    yaw: np.ndarray
+    owner: np.ndarray
+    material: np.ndarray
+    albedo: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "center", np.asarray(self.center, np.float64).reshape(-1, 3))
+        object.__setattr__(self, "half_size", np.asarray(self.half_size, np.float64).reshape(-1, 3))
+        object.__setattr__(self, "yaw", np.asarray(self.yaw, np.float64).reshape(-1))
+        object.__setattr__(self, "owner", np.asarray(self.owner, np.int32).reshape(-1))
+        object.__setattr__(self, "material", np.asarray(self.material, np.int16).reshape(-1))
+        if self.albedo is None:
+            albedo = MATERIAL_ALBEDO[self.material]
+        else:
+            albedo = np.asarray(self.albedo, np.float32).reshape(-1, 3)
+        object.__setattr__(self, "albedo", albedo)
+        m = len(self.center)
+        for name in ("half_size", "yaw", "owner", "material", "albedo"):
+            if len(getattr(self, name)) != m:
+                raise ValueError(f"Parts.{name} has {len(getattr(self, name))} rows, center has {m}")
+
+    def __len__(self) -> int:
+        return len(self.center)
+
+    def bounding_radius(self) -> np.ndarray:
+        """(M,) radius of each part's bounding sphere, centred on `center`."""
+        return np.linalg.norm(self.half_size, axis=1)
+
+
+def empty_parts() -> Parts:
+    """A set of zero parts."""
+    return Parts(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int32),
+                 np.zeros(0, np.int16), np.zeros((0, 3), np.float32))
+
+
+def concat_parts(parts_list: list[Parts]) -> Parts:
+    """Concatenate part sets in order; an empty list gives zero parts."""
+    if not parts_list:
+        return empty_parts()
+    return Parts(
+        np.concatenate([p.center for p in parts_list]),
+        np.concatenate([p.half_size for p in parts_list]),
+        np.concatenate([p.yaw for p in parts_list]),
+        np.concatenate([p.owner for p in parts_list]),
+        np.concatenate([p.material for p in parts_list]),
+        np.concatenate([p.albedo for p in parts_list]),
+    )
+
+
+def place_parts(parts: Parts, center: np.ndarray, yaw: float, owner: int) -> Parts:
+    """Move object-local parts to the global frame.
+
+    parts: in the object frame; center (3,) global position of the object's box centre
+    (metres); yaw radians about +z; owner: object index written into every part (-1 for
+    scenery). Returns a new `Parts` in the global frame.
+    """
+    c, s = np.cos(yaw), np.sin(yaw)
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return Parts(
+        parts.center @ rot.T + np.asarray(center, np.float64),
+        parts.half_size.copy(),
+        parts.yaw + yaw,
+        np.full(len(parts), owner, np.int32),
+        parts.material.copy(),
+        parts.albedo.copy(),
+    )
+
+
+class _Builder:
+    """Collects axis-aligned parts given by their min/max corners, then fits them to a box."""
+
+    def __init__(self) -> None:
+        self._lo: list[tuple[float, float, float]] = []
+        self._hi: list[tuple[float, float, float]] = []
+        self._material: list[int] = []
+        self._albedo: list[np.ndarray] = []
+
+    def add(self, lo, hi, material: int, albedo=None) -> None:
+        self._lo.append(tuple(lo))
+        self._hi.append(tuple(hi))
+        self._material.append(material)
+        self._albedo.append(MATERIAL_ALBEDO[material] if albedo is None
+                            else np.asarray(albedo, np.float32))
+
+    def add_center(self, center, half, material: int, albedo=None) -> None:
+        c, h = np.asarray(center, float), np.asarray(half, float)
+        self.add(c - h, c + h, material, albedo)
+
+    def fitted(self, size_wlh: np.ndarray) -> Parts:
+        """Parts scaled per axis so that their union's bounding box is exactly the
+        annotation box (l along x, w along y, h along z, centred at the origin)."""
+        lo, hi = np.array(self._lo), np.array(self._hi)
+        w, l, h = (float(v) for v in size_wlh)
+        target = np.array([l, w, h]) / 2.0
+        union_lo, union_hi = lo.min(axis=0), hi.max(axis=0)
+        scale = 2.0 * target / (union_hi - union_lo)
+        lo = (lo - union_lo) * scale - target
+        hi = (hi - union_lo) * scale - target
+        m = len(lo)
+        return Parts((lo + hi) / 2.0, (hi - lo) / 2.0, np.zeros(m), np.zeros(m, np.int32),
+                     np.array(self._material, np.int16), np.array(self._albedo, np.float32))
+
+
+def _ring(b: _Builder, cx: float, cz: float, radius: float, y_half: float, thickness: float,
+          material: int, segments: int = 12) -> None:
+    """A wheel rim seen from the side, as `segments` small boxes along a circle in x-z."""
+    ang = (np.arange(segments) + 0.5) * 2.0 * np.pi / segments
+    seg = np.pi * radius / segments
+    for a in ang:
+        x, z = cx + (radius - thickness) * np.cos(a), cz + (radius - thickness) * np.sin(a)
+        hx = abs(np.sin(a)) * seg + thickness
+        hz = abs(np.cos(a)) * seg + thickness
+        b.add_center((x, 0.0, z), (hx, y_half, hz), material)
+
+
+def _car(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+    # Belt-line height, cabin span along x and cabin width by body style.
+    belt, cab_rear, cab_front, cab_w = {
+        0: (0.56, -0.33, 0.17, 0.84),   # sedan
+        1: (0.55, -0.46, 0.12, 0.85),   # hatchback
+        2: (0.58, -0.46, 0.19, 0.88),   # SUV
+    }[app.variant % 3]
+    z0 = -h / 2
+    clearance = 0.11 * h
+    r = float(np.clip(0.2 * h, 0.28, 0.42))
+    tyre = 0.11
+    body_top = z0 + belt * h
+    roof_colour = app.secondary if app.pattern == TWO_TONE_ROOF else app.base
+    b.add((-l / 2 + 0.02, -w / 2 + 0.015, z0 + clearance), (l / 2 - 0.02, w / 2 - 0.015, body_top),
+          PAINT, app.base)
+    b.add((cab_rear * l, -cab_w * w / 2, body_top), (cab_front * l, cab_w * w / 2, h / 2),
+          GREENHOUSE, roof_colour)
+    for x in (0.31 * l, -0.29 * l):
+        for side in (1.0, -1.0):
+            b.add_center((x, side * (w / 2 - tyre), z0 + r), (r, tyre, r), TYRE)
+    light_z = body_top - 0.13
+    for side in (1.0, -1.0):
+        b.add_center((l / 2 - 0.01, side * (w / 2 - 0.30), light_z), (0.01, 0.17, 0.06), HEADLIGHT)
+        b.add_center((-l / 2 + 0.01, side * (w / 2 - 0.20), light_z), (0.01, 0.14, 0.07), TAILLIGHT)
+    plate_z = z0 + clearance + 0.22
+    b.add_center((l / 2 - 0.01, 0.0, plate_z), (0.01, 0.26, 0.06), PLATE)
+    b.add_center((-l / 2 + 0.01, 0.0, plate_z + 0.12), (0.01, 0.26, 0.06), PLATE)
+    b.add((l / 2 - 0.03, -w / 2 + 0.03, z0 + clearance), (l / 2 - 0.01, w / 2 - 0.03, plate_z - 0.08),
+          TRIM)
+
+
+def _truck(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+    z0 = -h / 2
+    cab_len = min(2.3, 0.38 * l)
+    cab_h = 0.8 * h
+    r = 0.5
+    front = l / 2
+    b.add((front - cab_len, -w / 2 + 0.02, z0 + 0.45), (front - 0.02, w / 2 - 0.02, z0 + 0.58 * cab_h),
+          PAINT, app.base)
+    b.add((front - cab_len, -w / 2 + 0.06, z0 + 0.58 * cab_h), (front - 0.25, w / 2 - 0.06, z0 + cab_h),
+          GREENHOUSE, app.base)
+    cargo_front = front - cab_len - 0.12
+    b.add((-l / 2, -w / 2, z0 + 0.35 * h), (cargo_front, w / 2, h / 2), PAINT2, app.secondary)
+    b.add((-l / 2 + 0.3, -w / 2 + 0.35, z0 + 0.35), (cargo_front, w / 2 - 0.35, z0 + 0.35 * h), TRIM)
+    for x in (front - 0.55 * cab_len, -l / 2 + 1.2, -l / 2 + 2.3):
+        for side in (1.0, -1.0):
+            b.add_center((x, side * (w / 2 - 0.17), z0 + r), (r, 0.16, r), TYRE)
+    for side in (1.0, -1.0):
+        b.add_center((front - 0.01, side * (w / 2 - 0.3), z0 + 0.75), (0.01, 0.17, 0.08), HEADLIGHT)
+        b.add_center((-l / 2 - 0.01, side * (w / 2 - 0.2), z0 + 0.35 * h + 0.15), (0.01, 0.12, 0.08),
+                     TAILLIGHT)
+    b.add_center((front - 0.01, 0.0, z0 + 0.5), (0.01, 0.26, 0.06), PLATE)
+
+
+def _bus(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+    z0 = -h / 2
+    r = 0.52
+    band_lo, band_hi = z0 + 0.42 * h, z0 + 0.88 * h
+    b.add((-l / 2 + 0.02, -w / 2, z0 + 0.32), (l / 2 - 0.02, w / 2, band_lo), PAINT, app.base)
+    b.add((-l / 2 + 0.02, -w / 2 + 0.02, band_lo), (l / 2 - 0.02, w / 2 - 0.02, band_hi),
+          GREENHOUSE, app.base)
+    b.add((-l / 2 + 0.02, -w / 2, band_hi), (l / 2 - 0.02, w / 2, h / 2), PAINT, app.base)
+    for x in (l / 2 - 2.4, -l / 2 + 2.8):
+        for side in (1.0, -1.0):
+            b.add_center((x, side * (w / 2 - 0.16), z0 + r), (r, 0.15, r), TYRE)
+    for side in (1.0, -1.0):
+        b.add_center((l / 2 - 0.01, side * (w / 2 - 0.35), z0 + 0.75), (0.01, 0.2, 0.09), HEADLIGHT)
+        b.add_center((-l / 2 + 0.01, side * (w / 2 - 0.2), z0 + 1.0), (0.01, 0.12, 0.2), TAILLIGHT)
+    b.add_center((l / 2 - 0.01, 0.0, z0 + 0.55), (0.01, 0.26, 0.06), PLATE)
+
+
+def _person(b: _Builder, h: float, stride: float, x0: float, z_feet: float, app: Appearance,
+            seated: bool = False) -> None:
+    """A person of height h standing (or seated on a saddle at hip height) at x0, z_feet."""
+    child = h < 1.45
+    head_h = (0.16 if child else 0.13) * h
+    leg_h = 0.47 * h
+    torso_top = h - head_h - 0.03 * h
+    torso_hw = 0.15 if child else 0.19
+    torso_hx = 0.09 if child else 0.11
+    sleeves = app.top if app.variant % 2 == 0 else app.skin
+    if seated:
+        # Thighs forward to the handlebar side, shins down to the pedals.
+        hip = z_feet + leg_h
+        for side, shift in ((1.0, stride), (-1.0, -stride)):
+            b.add((x0, side * 0.1 - 0.07, hip - 0.07), (x0 + 0.35, side * 0.1 + 0.07, hip + 0.07),
+                  CLOTH, app.bottom)
+            b.add((x0 + 0.25 + shift, side * 0.1 - 0.06, z_feet), (x0 + 0.37 + shift, side * 0.1 + 0.06,
+                  hip), CLOTH, app.bottom)
+        arm_x = (x0 + 0.05, x0 + 0.55)
+    else:
+        for side, shift in ((1.0, stride), (-1.0, -stride)):
+            b.add_center((x0 + shift, side * 0.09, z_feet + leg_h / 2), (0.075, 0.075, leg_h / 2),
+                         CLOTH, app.bottom)
+            b.add_center((x0 + shift + 0.04, side * 0.09, z_feet + 0.03), (0.12, 0.06, 0.03), TRIM)
+        arm_x = None
+    b.add((x0 - torso_hx, -torso_hw, z_feet + leg_h), (x0 + torso_hx, torso_hw, z_feet + torso_top),
+          CLOTH, app.top)
+    arm_lo = z_feet + leg_h + 0.04 * h
+    for side, shift in ((1.0, -stride), (-1.0, stride)):
+        y = side * (torso_hw + 0.05)
+        if arm_x is None:
+            b.add_center((x0 + 0.6 * shift, y, (arm_lo + z_feet + torso_top) / 2),
+                         (0.05, 0.05, (z_feet + torso_top - arm_lo) / 2), CLOTH, sleeves)
+        else:
+            b.add((arm_x[0], y - 0.05, z_feet + torso_top - 0.12), (arm_x[1], y + 0.05,
+                  z_feet + torso_top - 0.02), CLOTH, sleeves)
+    head_c = (x0, 0.0, z_feet + h - head_h / 2)
+    b.add_center(head_c, (0.095, 0.08, head_h / 2), SKIN, app.skin)
+    hair_material, hair_colour = (PAINT2, app.secondary) if seated else (HAIR, app.hair)
+    b.add((x0 - 0.11, -0.095, z_feet + h - 0.45 * head_h), (x0 + 0.07, 0.095, z_feet + h),
+          hair_material, hair_colour)
+    if app.pattern == BACKPACK and not seated:
+        b.add((x0 - torso_hx - 0.16, -0.15, z_feet + leg_h + 0.12 * h),
+              (x0 - torso_hx, 0.15, z_feet + torso_top - 0.03), PAINT2, app.secondary)
+
+
+def _pedestrian(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+    _person(b, h, stride=max(0.0, l / 2 - 0.12), x0=0.0, z_feet=-h / 2, app=app)
+
+
+def _cycle(b: _Builder, w: float, l: float, h: float, app: Appearance, motor: bool) -> None:
+    r = 0.3 if motor else 0.34
+    wheelbase = l - 2 * r
+    z0 = -h / 2
+    axle = z0 + r
+    thick = 0.07 if motor else 0.025
+    _ring(b, wheelbase / 2, axle, r, 0.06 if motor else 0.02, thick, TYRE)
+    _ring(b, -wheelbase / 2, axle, r, 0.06 if motor else 0.02, thick, TYRE)
+    frame_top = axle + (0.55 if motor else 0.45)
+    seat_x = -0.18 * wheelbase
+    bar_x = 0.42 * wheelbase
+    if motor:
+        b.add((-0.3 * wheelbase, -0.16, axle - 0.1), (0.3 * wheelbase, 0.16, axle + 0.3), METAL)
+        b.add((0.0, -0.18, axle + 0.3), (0.35 * wheelbase, 0.18, frame_top), PAINT, app.base)
+        b.add((-0.45 * wheelbase, -0.15, axle + 0.3), (0.0, 0.15, frame_top - 0.08), TRIM)
+        b.add((-wheelbase / 2 - 0.1, -0.1, axle + 0.2), (-0.3 * wheelbase, 0.1, axle + 0.35), PAINT,
+              app.base)
+        b.add_center((wheelbase / 2 + 0.05, 0.0, frame_top), (0.03, 0.09, 0.06), HEADLIGHT)
+        b.add_center((-wheelbase / 2 - 0.11, 0.0, axle + 0.32), (0.01, 0.07, 0.04), TAILLIGHT)
+    else:
+        b.add((seat_x, -0.02, frame_top - 0.04), (bar_x - 0.05, 0.02, frame_top), PAINT, app.base)
+        b.add((seat_x - 0.02, -0.02, axle), (seat_x + 0.02, 0.02, frame_top), PAINT, app.base)
+        b.add((-wheelbase / 2, -0.02, axle - 0.02), (seat_x, 0.02, axle + 0.02), PAINT, app.base)
+        b.add((seat_x, -0.02, axle - 0.02), (bar_x - 0.05, 0.02, axle + 0.04), PAINT, app.base)
+        b.add((seat_x - 0.1, -0.07, frame_top + 0.06), (seat_x + 0.1, 0.07, frame_top + 0.1), TRIM)
+        b.add((seat_x - 0.015, -0.015, frame_top), (seat_x + 0.015, 0.015, frame_top + 0.06), METAL)
+    fork_x = wheelbase / 2 - 0.05
+    b.add((fork_x - 0.02, -0.03, axle), (fork_x + 0.02, 0.03, frame_top + 0.18), METAL)
+    b.add((fork_x - 0.03, -w / 2, frame_top + 0.15), (fork_x + 0.03, w / 2, frame_top + 0.2), TRIM)
+    if app.rider:
+        seat_top = frame_top + (0.0 if motor else 0.1)
+        rider_h = float(np.clip(h - (seat_top - z0) + 0.47 * 1.75, 1.5, 1.9))
+        z_feet = seat_top - 0.47 * rider_h
+        _person(b, rider_h, stride=0.08, x0=seat_x, z_feet=z_feet, app=app, seated=True)
+
+
+def _barrier(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+    z0 = -h / 2
+    if app.variant % 2 == 0:
+        b.add((-l / 2, -w / 2, z0), (l / 2, w / 2, z0 + 0.3 * h), CONCRETE, app.base)
+        b.add((-0.22 * l, -w / 2, z0 + 0.3 * h), (0.22 * l, w / 2, h / 2), CONCRETE, app.base)
+    else:
+        b.add((-l / 2, -w / 2, z0), (l / 2, -w / 2 + 0.25, z0 + 0.12), TRIM)
+        b.add((-l / 2, w / 2 - 0.25, z0), (l / 2, w / 2, z0 + 0.12), TRIM)
+        b.add((-0.1 * l, -w / 2, z0 + 0.12), (0.1 * l, w / 2, h / 2), BARRIER_STRIPES, app.base)
+
+
+def _cone(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+    z0 = -h / 2
+    b.add((-l / 2, -w / 2, z0), (l / 2, w / 2, z0 + 0.05), TRIM)
+    tiers = 5
+    for i in range(tiers):
+        frac = 1.0 - i / tiers
+        half = 0.08 + 0.24 * frac
+        material = REFLECTOR if i in (2, 3) else CONE
+        b.add((-half * l, -half * w, z0 + 0.05 + (h - 0.05) * i / tiers),
+              (half * l, half * w, z0 + 0.05 + (h - 0.05) * (i + 1) / tiers), material)
+
+
+def _building(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+    b.add((-l / 2, -w / 2, -h / 2), (l / 2, w / 2, h / 2 - 0.4), FACADE, app.base)
+    b.add((-l / 2, -w / 2, h / 2 - 0.4), (l / 2, w / 2, h / 2), CONCRETE, app.secondary)
+
+
+_BUILDERS = {
+    "car": _car,
+    "truck": _truck,
+    "bus": _bus,
+    "pedestrian": _pedestrian,
+    "bicycle": lambda b, w, l, h, app: _cycle(b, w, l, h, app, motor=False),
+    "motorcycle": lambda b, w, l, h, app: _cycle(b, w, l, h, app, motor=True),
+    "barrier": _barrier,
+    "traffic_cone": _cone,
+    "building": _building,
+}
+
+
+def object_parts(kind: str, size_wlh, appearance: Appearance) -> Parts:
+    """Parts of one object in its local frame.
+
+    kind: one of `KINDS`; size_wlh (3,) box width, length, height in metres (nuScenes
+    order); appearance: the object's look from `sample_appearance(kind, ...)`. Returns parts
+    with owner 0 and yaw 0 whose union's bounding box is exactly the box
+    [-l/2, l/2] x [-w/2, w/2] x [-h/2, h/2]. Raises ValueError for an unknown kind or a
+    non-positive size.
+    """
+    if kind not in _BUILDERS:
+        raise ValueError(f"unknown object kind {kind!r}; expected one of {KINDS}")
+    size = np.asarray(size_wlh, np.float64).reshape(3)
+    if not np.all(size > 0):
+        raise ValueError(f"object size must be positive, got {size.tolist()}")
+    w, l, h = (float(v) for v in size)
+    b = _Builder()
+    _BUILDERS[kind](b, w, l, h, appearance)
+    return b.fitted(size)

@@ -1,0 +1,103 @@
+import numpy as np
+import pytest
+
+from sianms_cli.synth import shapes
+from sianms_cli.synth.appearance import CameraStyle, camera_style, sample_appearance
+from sianms_cli.synth.camera import render_camera
+from sianms_cli.synth.shapes import Parts, concat_parts
+
+W, H, F, CX, CY = 160, 120, 100.0, 80.0, 60.0
+K = np.array([[F, 0.0, CX], [0.0, F, CY], [0.0, 0.0, 1.0]])
+SUN = np.array([0.3, 0.2, 0.9])
+# Camera 1.5 m above the origin looking along +x: camera x = -y, camera y = -z, camera z = +x.
+CAM_TO_WORLD = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 1.5],
+                         [0.0, 0.0, 0.0, 1.0]])
+
+
+def flat_ground(xy):
+    return np.full((len(xy), 3), 0.1)
+
+
+def cube(owner=0, center=(10.0, 0.0, 1.5), half=(1.0, 1.0, 1.0)):
+    return Parts([center], [half], [0.0], [owner], [shapes.PAINT])
+
+
+def render(parts, n_objects=1, style=None, seed=0):
+    apps = [sample_appearance("car", np.random.default_rng(i)) for i in range(n_objects)]
+    return render_camera(parts, apps, flat_ground, K, CAM_TO_WORLD, W, H, style or CameraStyle(),
+                         SUN, n_objects, np.random.default_rng(seed))
+
+
+def predicted_front_face_mask(x_face, y_lo, y_hi, z_lo, z_hi):
+    """Pixels whose centre projects inside the face x = x_face, y in [y_lo, y_hi], z in [z_lo, z_hi]."""
+    u = np.arange(W) + 0.5
+    v = np.arange(H) + 0.5
+    y = -(u - CX) / F * x_face
+    z = 1.5 - (v - CY) / F * x_face
+    return ((z[:, None] >= z_lo) & (z[:, None] <= z_hi)) & ((y[None, :] >= y_lo) & (y[None, :] <= y_hi))
+
+
+def test_cube_covers_exactly_its_projected_pixels():
+    out = render(cube())
+    expected = predicted_front_face_mask(9.0, -1.0, 1.0, 0.5, 2.5)
+    # Face edges project to u, v in {68.89, 91.11}: columns and rows 69..90.
+    assert expected.sum() == 22 * 22
+    np.testing.assert_array_equal(out.owner_map == 0, expected)
+    assert out.object_pixels[0] == 484 and out.visible_pixels[0] == 484
+    assert out.depth[60, 80] == pytest.approx(9.0, abs=1e-5)
+
+
+def test_occluder_reduces_visible_but_not_object_pixels():
+    occluder = cube(owner=1, center=(5.0, 0.5, 1.6), half=(0.2, 0.5, 1.4))
+    out = render(concat_parts([cube(), occluder]), n_objects=2)
+    # The occluder's face x = 4.8, y in [0, 1] spans u in [59.2, 80]: columns 59..79 hide the
+    # cube's columns 69..79, leaving 90 - 80 + 1 = 11 of its 22 columns.
+    assert out.object_pixels[0] == 484
+    assert out.visible_pixels[0] == 22 * 11
+    occluder_mask = predicted_front_face_mask(4.8, 0.0, 1.0, 0.2, 3.0)
+    assert occluder_mask.sum() == 58 * 21
+    assert out.object_pixels[1] == out.visible_pixels[1] == occluder_mask.sum()
+    np.testing.assert_array_equal(out.owner_map == 1, occluder_mask)
+
+
+def test_scenery_occludes_but_is_not_counted():
+    occluder = cube(owner=-1, center=(5.0, 0.5, 1.6), half=(0.2, 0.5, 1.4))
+    out = render(concat_parts([cube(), occluder]), n_objects=1)
+    assert out.object_pixels[0] == 484
+    assert out.visible_pixels[0] == 242
+    assert np.all(out.owner_map[out.depth < 4.9] == -1)
+
+
+def test_ground_depth_and_sky():
+    out = render(cube())
+    # Row 100 looks down by (100.5 - 60) / 100 per metre ahead: the ground is 1.5 / 0.405 ahead.
+    assert out.depth[100, 10] == pytest.approx(1.5 / 0.405, rel=1e-6)
+    assert np.isinf(out.depth[0, 0]) and out.owner_map[0, 0] == -1
+    assert out.image.shape == (H, W, 3) and out.image.dtype == np.uint8
+    assert out.owner_map.dtype == np.int32 and out.depth.dtype == np.float32
+
+
+def test_same_seed_same_image_and_style_changes_only_pixels():
+    style = camera_style(np.random.default_rng(4))
+    a, b = render(cube(), style=style, seed=3), render(cube(), style=style, seed=3)
+    np.testing.assert_array_equal(a.image, b.image)
+    other = render(cube(), style=camera_style(np.random.default_rng(5)), seed=3)
+    np.testing.assert_array_equal(a.owner_map, other.owner_map)
+    assert np.abs(a.image.astype(int) - other.image.astype(int)).mean() > 1.0
+
+
+def test_face_turned_to_the_sun_is_brighter_than_the_face_in_shade():
+    apps = [sample_appearance("car", np.random.default_rng(0))]
+
+    def mean_cube_level(sun):
+        out = render_camera(cube(), apps, flat_ground, K, CAM_TO_WORLD, W, H, CameraStyle(), sun, 1,
+                            np.random.default_rng(0))
+        return out.image[out.owner_map == 0].astype(float).mean()
+    # The visible face looks along -x: lit by a sun behind the camera, in shade with the sun behind the cube.
+    assert mean_cube_level(np.array([-1.0, 0.0, 0.3])) > mean_cube_level(np.array([1.0, 0.0, 0.3])) + 20
+
+
+def test_empty_scene_renders_ground_and_sky():
+    out = render(concat_parts([]), n_objects=0)
+    assert out.object_pixels.shape == (0,) and np.all(out.owner_map == -1)
+    assert np.isfinite(out.depth[-1]).all() and np.isinf(out.depth[0]).all()

@@ -1,0 +1,134 @@
+import hashlib
+import json
+
+import numpy as np
+import pytest
+
+from sianms_cli.errors import OutputExistsError, SianmsError
+from sianms_cli.geometry.boxes import count_points_in_boxes
+from sianms_cli.geometry.transforms import apply_transform, sensor_to_global
+from sianms_cli.nuscenes.loader import NuScenesDB
+from sianms_cli.synth import generate
+from sianms_cli.synth.generate import SynthConfig, scene_names_for, synthesize
+
+
+def _digest(root):
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def test_tables_are_consistent(tiny_dataroot):
+    db = NuScenesDB(tiny_dataroot, "v1.0-mini")
+    assert len(db.table("scene")) == 2
+    assert len(db.table("sample")) == 6
+    assert len(db.table("sample_data")) == 6 * 7
+    for scene in db.table("scene").tokens:
+        samples = db.sample_tokens_of_scene(scene)
+        assert len(samples) == 3
+        for sample in samples:
+            assert sorted(db.keyframe_data(sample)) == sorted(generate.CAMERA_CHANNELS + ("LIDAR_TOP",))
+    instances = db.table("instance")
+    counts = np.bincount(db.table("sample_annotation").rows("instance_token"), minlength=len(instances))
+    np.testing.assert_array_equal(counts, instances.column("nbr_annotations"))
+
+
+def test_scene_names_resolve_devkit_mini_splits(tiny_dataroot):
+    names = sorted(NuScenesDB(tiny_dataroot, "v1.0-mini").table("scene").column("name"))
+    assert names == ["scene-0061", "scene-0103"]  # mini_train and mini_val
+
+
+def test_num_lidar_pts_counts_the_points_inside_each_box(tiny_dataroot):
+    db = NuScenesDB(tiny_dataroot, "v1.0-mini")
+    annotations = db.table("sample_annotation")
+    for sample in db.table("sample").tokens[:3]:
+        lidar = db.keyframe_data(sample)["LIDAR_TOP"]
+        points = db.read_lidar(lidar)
+        to_global = sensor_to_global(*db.ego_pose_of(lidar), *db.calibration_of(lidar)[:2])
+        points_global = apply_transform(to_global, points[:, :3])
+        rows = db.sample_annotation_rows(sample)
+        counted = count_points_in_boxes(points_global, annotations.column("translation")[rows],
+                                        annotations.column("size")[rows], annotations.column("rotation")[rows])
+        np.testing.assert_array_equal(counted, annotations.column("num_lidar_pts")[rows])
+        assert 20_000 < len(points) < 40_000
+
+
+def test_images_match_their_scaled_intrinsics(tiny_dataroot):
+    db = NuScenesDB(tiny_dataroot, "v1.0-mini")
+    sample = db.table("sample").tokens[0]
+    token = db.keyframe_data(sample)["CAM_FRONT"]
+    image = db.read_image(token)
+    assert image.shape == (90, 160, 3)
+    _, _, intrinsic = db.calibration_of(token)
+    front_focals = {rig[0].focal for rig in (generate.RIG_BOSTON, generate.RIG_SINGAPORE)}
+    assert min(abs(intrinsic[0, 0] - 0.1 * f) for f in front_focals) < 0.01  # calibrated fx, scaled 0.1
+
+
+def test_same_seed_same_bytes_and_workers_do_not_matter(tmp_path, tiny_dataroot, make_tiny):
+    again = make_tiny(tmp_path / "again")
+    parallel = synthesize(tmp_path / "parallel", SynthConfig(scenes=2, image_scale=0.1, scene_seconds=1.5, seed=3),
+                          progress=False, workers=2)
+    assert _digest(again) == _digest(tiny_dataroot)
+    assert _digest(parallel) == _digest(tiny_dataroot)
+
+
+def test_other_seed_other_world(tmp_path, tiny_dataroot, make_tiny):
+    other = make_tiny(tmp_path / "other", seed=4)
+    assert _digest(other)["v1.0-mini/sample_annotation.json"] != _digest(tiny_dataroot)["v1.0-mini/sample_annotation.json"]
+
+
+def test_sensors_none_writes_tables_with_point_counts(tmp_path, make_tiny):
+    root = make_tiny(tmp_path / "tables", sensors="none", scenes=1)
+    assert not (root / "samples").exists()
+    db = NuScenesDB(root, "v1.0-mini")
+    assert db.table("sample_annotation").column("num_lidar_pts").sum() > 0
+
+
+def test_refuses_a_non_empty_output_and_replaces_it_when_told(tmp_path, make_tiny):
+    out = tmp_path / "taken"
+    out.mkdir()
+    (out / "keep.txt").write_text("mine")
+    with pytest.raises(OutputExistsError, match="--overwrite"):
+        make_tiny(out, scenes=1)
+    assert (out / "keep.txt").read_text() == "mine"
+    synthesize(out, SynthConfig(scenes=1, image_scale=0.1, scene_seconds=0.5), overwrite=True, progress=False)
+    assert not (out / "keep.txt").exists() and (out / "v1.0-mini" / "scene.json").exists()
+
+
+def test_an_interrupted_run_leaves_nothing(tmp_path, monkeypatch, make_tiny):
+    def fail(*args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(generate, "_scene_records", fail)
+    with pytest.raises(KeyboardInterrupt):
+        make_tiny(tmp_path / "out", scenes=1)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_custom_version_writes_splits_json(tmp_path, make_tiny):
+    root = make_tiny(tmp_path / "custom", version="synth-v1", scenes=3, sensors="none", scene_seconds=0.5)
+    splits = json.loads((root / "synth-v1" / "splits.json").read_text())
+    assert splits == {"synth_train": ["scene-0001", "scene-0002"], "synth_val": ["scene-0003"]}
+
+
+def test_trainval_names_come_from_the_devkit_train_and_val_lists():
+    from sianms_cli.nuscenes.splits import splits_for_version
+
+    official = splits_for_version("v1.0-trainval")
+    names = scene_names_for("v1.0-trainval", 12)
+    val = [n for n in names if n in official["val"]]
+    assert len(names) == 12 and len(val) == 2  # 150/850 of 12, rounded
+    assert set(names) - set(val) <= set(official["train"])
+
+
+@pytest.mark.parametrize("config, message", [
+    (SynthConfig(scenes=0), "--scenes must be at least 1"),
+    (SynthConfig(scenes=11), "has 10 scenes"),
+    (SynthConfig(version="v1.0-trainval"), "--scenes is required"),
+    (SynthConfig(scenes=1, image_scale=0.0), "--image-scale"),
+    (SynthConfig(scenes=1, sensors="radar"), "--sensors must be one of"),
+    (SynthConfig(scenes=1, scene_seconds=25), "--scene-seconds"),
+])
+def test_bad_options_fail_clearly(tmp_path, config, message):
+    with pytest.raises(SianmsError, match=message):
+        synthesize(tmp_path / "out", config, progress=False)
+    assert not (tmp_path / "out").exists()
