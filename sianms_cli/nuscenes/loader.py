@@ -13,6 +13,10 @@ so a v1.0-trainval-sized set (1.2 M annotations, 2.6 M sample_data) fits in a fe
 Token -> row lookup goes through a sorted 64-bit key per token (a fixed linear hash of the
 token's characters) and ``np.searchsorted``; every hit is confirmed against the token itself.
 
+Table files are decoded with orjson when it is installed (2-3x faster than the json module),
+large ones in runs of whole records so that the parser never holds a whole 1 GB file as
+Python objects: a trainval-sized load peaks at about twice what the loaded tables hold.
+
 Loading validates everything the toolkit relies on and stops at the first problem with one
 :class:`~sianms_cli.errors.DataFormatError` naming the file, the record token and the field.
 Fields outside the schema and optional extra tables (lidarseg, panoptic, image annotations)
@@ -23,6 +27,8 @@ from __future__ import annotations
 
 import gc
 import json
+import mmap
+import re
 from contextlib import contextmanager
 from functools import cached_property
 from itertools import chain
@@ -45,6 +51,10 @@ _REF_KINDS = ("ref", "optional_ref", "ref_list")
 _TEXT_ENCODING = "utf-8"
 # Lone surrogates (legal in JSON escapes) survive the round trip through bytes.
 _TEXT_ERRORS = "surrogatepass"
+_CHUNK_BYTES = 32 * 2**20
+_LIST_START = re.compile(rb"[ \t\n\r]*\[")
+_BETWEEN_OBJECTS = re.compile(rb"\}[ \t\n\r]*,[ \t\n\r]*(?=\{)")
+_SPACE_TO_END = re.compile(rb"[ \t\n\r]*\Z")
 
 
 # --------------------------------------------------------------------------- token index
@@ -141,17 +151,17 @@ def _collector_paused() -> Iterator[None]:
             gc.enable()
 
 
-def read_json(path: Path) -> Any:
-    """The decoded JSON document at ``path``: orjson when installed, else the json module.
+def _loads(data: bytes) -> Any:
+    if orjson is not None:
+        return orjson.loads(data)
+    return json.loads(data.decode("utf-8"))
 
-    Invalid UTF-8 or JSON raises DataFormatError naming the file (with line and column).
-    A missing file raises FileNotFoundError; callers check existence first.
-    """
-    data = path.read_bytes()
+
+def _decode_document(path: Path, data: bytes) -> Any:
+    """``data`` decoded; invalid UTF-8 or JSON raises DataFormatError naming the file (with the
+    line and column)."""
     try:
-        if orjson is not None:
-            return orjson.loads(data)
-        return json.loads(data.decode("utf-8"))
+        return _loads(data)
     except UnicodeDecodeError as exc:
         raise DataFormatError(path, f"not valid UTF-8 at byte {exc.start}") from None
     except json.JSONDecodeError as exc:
@@ -160,27 +170,100 @@ def read_json(path: Path) -> Any:
         ) from None
 
 
-def _record_error(path: Path, records: list, i: int, field: str, problem: str) -> DataFormatError:
+def read_json(path: Path) -> Any:
+    """The decoded JSON document at ``path``: orjson when installed, else the json module.
+
+    Invalid UTF-8 or JSON raises DataFormatError naming the file (with line and column).
+    A missing file raises FileNotFoundError; callers check existence first.
+    """
+    return _decode_document(path, path.read_bytes())
+
+
+def _record_runs(data: Any, chunk_bytes: int) -> list[tuple[int, int]] | None:
+    """Byte ranges [a, b) that split the top-level JSON array in ``data`` (bytes-like) into
+    runs of about ``chunk_bytes``, cut where one object ends and the next begins (``}``,
+    comma, ``{``); ``b"[" + data[a:b] + b"]"`` then holds the run's elements. None when
+    ``data`` does not look like one array.
+
+    The cuts are guesses (the pattern may sit inside a string or a nested object), verified
+    by decoding: a run decodes only if it starts and ends on element boundaries of the
+    document, because a JSON parser reads the run exactly as it reads the document from the
+    run's start. So if every run decodes, together they decode the whole document.
+    """
+    opening = _LIST_START.match(data)
+    close = data.rfind(b"]")
+    if opening is None or close < opening.end() or not _SPACE_TO_END.match(data, close + 1):
+        return None
+    runs, begin = [], opening.end()
+    while begin + chunk_bytes < close:
+        between = _BETWEEN_OBJECTS.search(data, begin + chunk_bytes, close)
+        if between is None:
+            break
+        runs.append((begin, between.start() + 1))
+        begin = between.end()
+    runs.append((begin, close))
+    return runs
+
+
+def _documents(path: Path) -> Iterator[Any]:
+    """The decoded table file, in pieces.
+
+    A file larger than _CHUNK_BYTES holding a JSON array comes as consecutive lists of its
+    elements, about _CHUNK_BYTES of text each: decoding a 1.3 GB sample_data.json whole
+    peaks at about 5x its size (the parser's own document plus the Python objects), in
+    pieces at one piece plus the file, memory-mapped (evictable). Any other file comes
+    whole, once, whatever its type.
+    """
+    if path.stat().st_size <= _CHUNK_BYTES:
+        yield read_json(path)
+        return
+    with open(path, "rb") as handle, mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ) as data:
+        runs = _record_runs(data, _CHUNK_BYTES)
+        if runs is None:
+            yield _decode_document(path, data[:])
+            return
+        consumed = 0
+        for begin, end in runs:
+            try:
+                piece = _loads(b"[" + data[begin:end] + b"]")
+            except (UnicodeDecodeError, json.JSONDecodeError):
+                # A malformed file, or a cut guessed inside a string or a nested object:
+                # decoding the whole file names the error (with its line), or else recovers
+                # the remaining elements.
+                whole = _decode_document(path, data[:])
+                assert isinstance(whole, list), type(whole)
+                yield whole[consumed:]
+                return
+            consumed += len(piece)
+            yield piece
+
+
+def _record_error(
+    path: Path, records: list, i: int, first: int, field: str, problem: str
+) -> DataFormatError:
+    """The error for record ``i`` of ``records``, the ``first``-th record of the file onwards."""
     token = records[i].get("token")
     if isinstance(token, str) and token:
         return DataFormatError(path, problem, token=token, field=field)
-    return DataFormatError(path, f"record at position {i}: {problem}", field=field)
+    return DataFormatError(path, f"record at position {first + i}: {problem}", field=field)
 
 
-def _field_values(path: Path, records: list, field: str) -> list:
+def _field_values(path: Path, records: list, first: int, field: str) -> list:
     try:
         return list(map(itemgetter(field), records))
     except KeyError:
         i = next(i for i, record in enumerate(records) if field not in record)
-        raise _record_error(path, records, i, field, "missing") from None
+        raise _record_error(path, records, i, first, field, "missing") from None
 
 
-def _diagnose(path: Path, records: list, values: list, field: str, kind: Field) -> DataFormatError:
+def _diagnose(
+    path: Path, records: list, first: int, values: list, field: str, kind: Field
+) -> DataFormatError:
     """The error for the first value of ``field`` that breaks its kind."""
     for i, value in enumerate(values):
         problem = check_value(kind, value)
         if problem is not None:
-            return _record_error(path, records, i, field, problem)
+            return _record_error(path, records, i, first, field, problem)
     raise AssertionError(f"{path}: {field}: fast check rejected values the exact check accepts")
 
 
@@ -261,54 +344,81 @@ def _convert(values: list, kind: Field) -> Any:
     return _token_lists(values)
 
 
+def _concatenate(pieces: list) -> Any:
+    if isinstance(pieces[0], tuple):
+        return tuple(np.concatenate(parts) for parts in zip(*pieces))
+    return np.concatenate(pieces)
+
+
 class _ParsedTable:
     """One table file decoded into columns and indexed by token.
 
     A token reference becomes rows (in ``rows``) while the file is decoded when its table is
-    this one or already parsed; otherwise it stays strings (in ``columns``) until
-    :meth:`resolve_references` is given its table. Converting each reference column straight
-    to rows keeps one column of token strings alive at a time (GBs on v1.0-trainval).
+    already parsed, right after when it is this table; otherwise it stays strings (in
+    ``columns``) until :meth:`resolve_references` is given its table. Turning references to
+    rows piece by piece keeps few token strings alive at once (GBs on v1.0-trainval).
     """
 
     def __init__(self, name: str, path: Path, parsed: Mapping[str, _ParsedTable]) -> None:
         self.name = name
         self.path = path
+        self.schema = SCHEMAS[name]
         self.columns: dict[str, Any] = {}
         self.rows: dict[str, np.ndarray] = {}
         self._unresolved: dict[str, Field] = {}
         with _collector_paused():
-            self._decode(read_json(path), parsed)
+            pieces = self._decode(parsed)
+        self.tokens: np.ndarray = _concatenate(pieces.pop("token"))
+        self.index = _TokenIndex(self.tokens)
+        self._check_unique()
+        for field, kind in self.schema.items():
+            if field == "token":
+                continue
+            column = _concatenate(pieces.pop(field))
+            if kind.kind not in _REF_KINDS:
+                self.columns[field] = column
+            elif kind.table in parsed:
+                self._store_rows(field, column)
+            elif kind.table == name:
+                self._store_rows(field, self._resolve(field, kind, column, self.index,
+                                                      self.tokens))
+            else:
+                self.columns[field] = column
+                self._unresolved[field] = kind
 
-    def _decode(self, records: Any, parsed: Mapping[str, _ParsedTable]) -> None:
-        path = self.path
+    def _decode(self, parsed: Mapping[str, _ParsedTable]) -> dict[str, list]:
+        """Per field, the column of each piece of the file; references to tables in
+        ``parsed`` already as rows."""
+        fields = ["token", *(field for field in self.schema if field != "token")]
+        pieces: dict[str, list] = {field: [] for field in fields}
+        first = 0
+        for records in _documents(self.path):
+            self._check_records(records, first)
+            for field in fields:
+                kind = self.schema[field]
+                values = _field_values(self.path, records, first, field)
+                column = _convert(values, kind)
+                if column is None:
+                    raise _diagnose(self.path, records, first, values, field, kind)
+                del values
+                if kind.kind in _REF_KINDS and kind.table in parsed:
+                    column = self._resolve(field, kind, column, parsed[kind.table].index,
+                                           pieces["token"][-1])
+                pieces[field].append(column)
+            first += len(records)
+        return pieces
+
+    def _check_records(self, records: Any, first: int) -> None:
         if not isinstance(records, list):
             raise DataFormatError(
-                path, f"top level must be a list of records, got {type(records).__name__}"
+                self.path, f"top level must be a list of records, got {type(records).__name__}"
             )
         if not _types_within(records, (dict,)):
             i = next(i for i, record in enumerate(records) if not isinstance(record, dict))
             raise DataFormatError(
-                path, f"record at position {i} is a {type(records[i]).__name__}, not an object"
+                self.path,
+                f"record at position {first + i} is a {type(records[i]).__name__}, not an object",
             )
-        for field, kind in SCHEMAS[self.name].items():
-            values = _field_values(path, records, field)
-            column = _convert(values, kind)
-            if column is None:
-                raise _diagnose(path, records, values, field, kind)
-            del values
-            if kind.kind == "token":
-                self.tokens: np.ndarray = column
-                self.index = _TokenIndex(column)
-                self._check_unique()
-            elif kind.kind in _REF_KINDS:
-                target = self if kind.table == self.name else parsed.get(kind.table)
-                if target is None:
-                    self.columns[field] = column
-                    self._unresolved[field] = kind
-                else:
-                    self.rows[field] = self._resolve(field, kind, column, target.index)
-            else:
-                self.columns[field] = column
 
     def _check_unique(self) -> None:
         duplicate = self.index.first_duplicate()
@@ -341,43 +451,49 @@ class _ParsedTable:
         for field, kind in list(self._unresolved.items()):
             target = parsed.get(kind.table)
             if target is not None:
-                self.rows[field] = self._resolve(field, kind, self.columns.pop(field), target.index)
+                column = self.columns.pop(field)
+                self._store_rows(field, self._resolve(field, kind, column, target.index,
+                                                      self.tokens))
                 del self._unresolved[field]
 
-    def _dangling(self, row: int, field: str, kind: Field, token: str) -> DataFormatError:
-        return DataFormatError(
-            self.path,
-            f"refers to {kind.table} token '{token}', which is not in {kind.table}.json",
-            token=str(self.tokens[row]),
-            field=field,
-        )
+    def _store_rows(self, field: str, rows: Any) -> None:
+        if self.schema[field].kind == "ref_list":
+            rows = _padded(*rows)
+        self.rows[field] = rows
 
-    def _resolve(self, field: str, kind: Field, column: Any, index: _TokenIndex) -> np.ndarray:
-        """Rows of a reference column: (N,) for a token per record, (N, K) padded with -1 for
-        a list of tokens per record."""
+    def _resolve(self, field: str, kind: Field, column: Any, index: _TokenIndex,
+                 record_tokens: np.ndarray) -> Any:
+        """Rows of a reference column: (N,) for one token per record, -1 for ""; for a list of
+        tokens per record (lengths (N,), rows of all the tokens). ``record_tokens`` (N,) name
+        the records in the error for a token missing from ``index``."""
         if kind.kind == "ref_list":
-            return self._resolve_lists(field, kind, *column, index)
-        tokens = column
+            lengths, tokens = column
+            owners = np.repeat(np.arange(len(lengths)), lengths)
+        else:
+            tokens = column
+            owners = np.arange(len(tokens))
         rows = index.lookup(tokens)
         dangling = (rows < 0) & (tokens != "")
         if dangling.any():
             i = _first_row(dangling)
-            raise self._dangling(i, field, kind, str(tokens[i]))
-        return rows
+            raise DataFormatError(
+                self.path,
+                f"refers to {kind.table} token '{tokens[i]}', which is not in {kind.table}.json",
+                token=str(record_tokens[owners[i]]),
+                field=field,
+            )
+        return (lengths, rows) if kind.kind == "ref_list" else rows
 
-    def _resolve_lists(self, field: str, kind: Field, lengths: np.ndarray,
-                       flat_tokens: np.ndarray, index: _TokenIndex) -> np.ndarray:
-        """(N, K) rows padded with -1, K the longest list."""
-        flat_rows = index.lookup(flat_tokens)
-        owners = np.repeat(np.arange(len(lengths)), lengths)
-        if (flat_rows < 0).any():
-            j = _first_row(flat_rows < 0)
-            raise self._dangling(int(owners[j]), field, kind, str(flat_tokens[j]))
-        width = int(lengths.max()) if len(lengths) else 0
-        padded = np.full((len(lengths), width), -1, dtype=np.int64)
-        starts = np.cumsum(lengths) - lengths
-        padded[owners, np.arange(len(flat_rows)) - starts[owners]] = flat_rows
-        return padded
+
+def _padded(lengths: np.ndarray, flat_rows: np.ndarray) -> np.ndarray:
+    """(N, K) rows, K the longest list, padded with -1, from the lists' lengths (N,) and all
+    their rows one after the other."""
+    width = int(lengths.max()) if len(lengths) else 0
+    padded = np.full((len(lengths), width), -1, dtype=np.int64)
+    owners = np.repeat(np.arange(len(lengths)), lengths)
+    starts = np.cumsum(lengths) - lengths
+    padded[owners, np.arange(len(flat_rows)) - starts[owners]] = flat_rows
+    return padded
 
 
 def _first_row(mask: np.ndarray) -> int:

@@ -64,7 +64,9 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> None:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".partial")
+    handle, temp_name = tempfile.mkstemp(
+        dir=path.parent, prefix=f".{path.name}.", suffix=".partial"
+    )
     try:
         with os.fdopen(handle, "wb") as temp:
             temp.write(data)
@@ -87,7 +89,9 @@ def read_pcd_bin(path: str | Path, token: str | None = None) -> np.ndarray:
     except FileNotFoundError:
         raise DataFormatError(path, "lidar file not found", token=token) from None
     except OSError as exc:
-        raise DataFormatError(path, f"cannot read lidar file: {exc.strerror}", token=token) from None
+        raise DataFormatError(
+            path, f"cannot read lidar file: {exc.strerror}", token=token
+        ) from None
     if len(raw) % _PCD_BIN_POINT_BYTES:
         raise DataFormatError(
             path,

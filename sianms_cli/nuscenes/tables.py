@@ -32,7 +32,9 @@ TABLE_NAMES: tuple[str, ...] = (
 )
 """The 13 tables, in the order nuscenes-devkit loads them."""
 
-FIELD_KINDS = ("token", "str", "int", "bool", "vector", "intrinsic", "ref", "optional_ref", "ref_list")
+FIELD_KINDS = (
+    "token", "str", "int", "bool", "vector", "intrinsic", "ref", "optional_ref", "ref_list",
+)
 
 
 @dataclass(frozen=True)
@@ -274,15 +276,15 @@ CATEGORIES: tuple[Category, ...] = (
         "Object a pedestrian pushes or pulls: dolly, wheelbarrow, garbage bin, shopping cart.",
     ),
     Category("movable_object.trafficcone", "Traffic cone of any type."),
-    Category("static_object.bicycle_rack", "Area or device for parking bicycles, with the bikes in it."),
+    Category("static_object.bicycle_rack", "Area or device for parking bicycles, bikes included."),
     Category("vehicle.bicycle", "Human or electric powered two-wheeler for low speeds."),
     Category("vehicle.bus.bendy", "Articulated bus; each section annotated separately."),
     Category("vehicle.bus.rigid", "Rigid bus."),
     Category("vehicle.car", "Vehicle for personal use: sedan, hatchback, wagon, van, SUV, jeep."),
     Category("vehicle.construction", "Vehicle built for construction work, slow or stationary."),
     Category("vehicle.emergency.ambulance", "Ambulance."),
-    Category("vehicle.emergency.police", "Police vehicle, including police bicycles and motorcycles."),
-    Category("vehicle.motorcycle", "Motor-powered two-wheeler at car speeds: motorcycle, vespa, scooter."),
+    Category("vehicle.emergency.police", "Police vehicle, police bicycles and motorcycles too."),
+    Category("vehicle.motorcycle", "Motor-powered two-wheeler at car speeds, vespas included."),
     Category("vehicle.trailer", "Trailer hauled by a truck, car or bike."),
     Category("vehicle.truck", "Vehicle built to haul cargo: pick-up, lorry, truck, semi-tractor."),
 )

@@ -60,14 +60,19 @@ def attribute_token(name: str) -> str:
     return make_token("attribute", name)
 
 
+_JSON_SCALAR_TYPES = frozenset((str, int, float, bool))
+
+
 def _plain(value: Any) -> Any:
     """``value`` with numpy arrays and scalars, and tuples, turned into JSON's Python types."""
+    if type(value) in _JSON_SCALAR_TYPES:
+        return value
     if isinstance(value, np.ndarray):
         return value.tolist()
     if isinstance(value, np.generic):
         return value.item()
     if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
+        return [v if type(v) in _JSON_SCALAR_TYPES else _plain(v) for v in value]
     return value
 
 

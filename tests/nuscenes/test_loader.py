@@ -1,3 +1,4 @@
+import json
 import re
 
 import numpy as np
@@ -384,3 +385,105 @@ def test_loaded_tables_hold_no_python_object_per_record(db):
             column = table.rows(field) if table.schema[field].table else table.column(field)
             assert column.dtype != object, (name, field)
     assert re.fullmatch(r"Table\('sample', 5 records\)", repr(db.table("sample")))
+
+
+# --------------------------------------------------------------------------- decoding in pieces
+
+
+@pytest.fixture
+def small_pieces(monkeypatch):
+    """Decode every table file larger than 300 bytes in pieces of about 300 bytes."""
+    monkeypatch.setattr(loader, "_CHUNK_BYTES", 300)
+
+
+@pytest.mark.parametrize("with_orjson", [True, False])
+def test_round_trip_when_decoding_in_pieces(small_pieces, tiny_dataroot, tiny_records,
+                                            monkeypatch, with_orjson):
+    if not with_orjson:
+        monkeypatch.setattr(loader, "orjson", None)
+    assert (tiny_dataroot / VERSION / "sample_data.json").stat().st_size > 3000
+    db = NuScenesDB(tiny_dataroot, VERSION)
+    for name in TABLE_NAMES:
+        table = db.table(name)
+        assert [table.record(i) for i in range(len(table))] == tiny_records[name], name
+    # Pieces without attributes and pieces with one still give one (N, 1) array.
+    assert db.table("sample_annotation").rows("attribute_tokens").shape == (6, 1)
+
+
+def test_record_runs_cover_the_array_even_when_guessed_cuts_are_wrong(tmp_path, monkeypatch):
+    monkeypatch.setattr(loader, "_CHUNK_BYTES", 1)
+    elements = [{"b": {"c": 1}}, {"d": [1, 2]}, 7, {"a": "}, {"}, {"e": "x"}]
+    text = json.dumps(elements).encode()
+    runs = loader._record_runs(text, 1)
+    assert [text[begin:end] for begin, end in runs] == [
+        b'{"b": {"c": 1}}', b'{"d": [1, 2]}, 7, {"a": "}', b'{"}', b'{"e": "x"}']
+    path = tmp_path / "elements.json"
+    path.write_bytes(text + b"\n")
+    pieces = list(loader._documents(path))
+    # The second run ends inside a string and fails: the rest comes from a whole decode.
+    assert pieces == [elements[:1], elements[1:]]
+
+
+@pytest.mark.parametrize("text", ['{"a": [1]}', "[1, 2] x", "x [1]"])
+def test_record_runs_need_one_array(text):
+    assert loader._record_runs(text.encode(), 1) is None
+
+
+@pytest.mark.parametrize("text", [
+    "  [1, 2] [3]", "[1, 2]]", '[{"a": 1},\n {"b": 2},,\n {"c": 3}]', '[{"a": 1}, {"b": 2},]',
+])
+def test_malformed_arrays_fail_in_pieces_as_they_fail_whole(tmp_path, monkeypatch, text):
+    monkeypatch.setattr(loader, "_CHUNK_BYTES", 1)
+    path = tmp_path / "broken.json"
+    path.write_text(text)
+    with pytest.raises(DataFormatError) as whole:
+        loader.read_json(path)
+    with pytest.raises(DataFormatError) as in_pieces:
+        list(loader._documents(path))
+    assert str(in_pieces.value) == str(whole.value)
+    assert "invalid JSON at line" in str(whole.value)
+
+
+def test_syntax_error_in_a_later_piece_names_the_files_line(small_pieces, tiny_dataroot):
+    path = tiny_dataroot / VERSION / "sample_data.json"
+    lines = path.read_text().splitlines()
+    lines[9] = lines[9].replace('"is_key_frame": true', '"is_key_frame": tru')
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DataFormatError) as whole:
+        loader.read_json(path)
+    assert str(whole.value).startswith(f"{path}: invalid JSON at line 10, column ")
+    assert str(_load_error(tiny_dataroot)) == str(whole.value)
+
+
+def test_errors_in_later_pieces_name_positions_in_the_file(small_pieces, tiny_dataroot,
+                                                           rewrite_table, tiny_records):
+    path = rewrite_table("sample_data", lambda records: records[10].pop("token") and None)
+    assert str(_load_error(tiny_dataroot)) == (
+        f"{path}: field 'token': record at position 10: missing")
+    path = rewrite_table("sample_data", lambda records: records.__setitem__(10, ["x"]))
+    assert str(_load_error(tiny_dataroot)) == (
+        f"{path}: record at position 10 is a list, not an object")
+
+
+def test_duplicates_and_dangling_references_across_pieces(small_pieces, tiny_dataroot,
+                                                          rewrite_table, tiny_records):
+    tokens = [r["token"] for r in tiny_records["sample_data"]]
+
+    def duplicate(records):
+        records[11]["token"] = records[0]["token"]
+
+    path = rewrite_table("sample_data", duplicate)
+    assert str(_load_error(tiny_dataroot)) == (
+        f"{path}: record {tokens[0]}: field 'token': duplicate token "
+        "(records at positions 0 and 11)")
+    rewrite_table("sample_data", lambda records: records[11].__setitem__("token", tokens[11]))
+    rewrite_table("sample_data", lambda records: records[11].__setitem__("sample_token", "ghost"))
+    assert str(_load_error(tiny_dataroot)) == (
+        f"{path}: record {tokens[11]}: field 'sample_token': refers to sample token 'ghost', "
+        "which is not in sample.json")
+
+
+def test_a_large_file_that_is_not_a_list(small_pieces, tiny_dataroot, rewrite_table):
+    path = rewrite_table("sample_data", lambda records: {"records": records})
+    assert str(_load_error(tiny_dataroot)) == (
+        f"{path}: top level must be a list of records, got dict")
