@@ -1,7 +1,7 @@
 """The ``sianms`` command line: one module per subcommand, each a thin layer over the library."""
 
 from sianms_cli.cli._app import app
-from sianms_cli.cli import info, synth  # noqa: F401  (importing registers the subcommands)
+from sianms_cli.cli import info, metrics, prepare, synth  # noqa: F401  (importing registers the subcommands)
 
 
 def main() -> None:

@@ -10,9 +10,9 @@ from collections import Counter
 
 import numpy as np
 
-from sianms_cli.geometry.rig import CameraRig
 from sianms_cli.geometry.transforms import apply_transform, invert_transform, make_transform
 from sianms_cli.nuscenes.loader import NuScenesDB
+from sianms_cli.nuscenes.rigs import sample_rigs
 
 CAR = "vehicle.car"
 CAR_EVAL_RANGE = 50.0  # the devkit's class range for cars (detection_cvpr_2019)
@@ -112,10 +112,9 @@ def _overlap_and_distance(db: NuScenesDB) -> tuple[np.ndarray, np.ndarray]:
     centers = annotations.column("translation")
     overlap = np.zeros(len(annotations), dtype=bool)
     distance = np.full(len(annotations), np.inf)
-    rigs: dict[tuple, CameraRig] = {}
-    sensors = db.table("sensor")
-    cameras_of_rig = set(sensors.column("channel")[sensors.column("modality") == "camera"].tolist())
-    for sample_token in db.table("sample").tokens:
+    sample_tokens = db.table("sample").tokens
+    rigs, rig_of_sample = sample_rigs(db, sample_tokens)
+    for sample_token, rig in zip(sample_tokens, rig_of_sample.tolist()):
         rows = db.sample_annotation_rows(sample_token)
         data = db.keyframe_data(sample_token)
         if len(rows) == 0 or "LIDAR_TOP" not in data:
@@ -123,25 +122,9 @@ def _overlap_and_distance(db: NuScenesDB) -> tuple[np.ndarray, np.ndarray]:
         rotation, translation = db.ego_pose_of(data["LIDAR_TOP"])
         centers_ego = apply_transform(invert_transform(make_transform(rotation, translation)), centers[rows])
         distance[rows] = np.hypot(centers_ego[:, 0], centers_ego[:, 1])
-        cameras = sorted(channel for channel in data if channel in cameras_of_rig)
-        key = tuple(db.get("sample_data", data[c])["calibrated_sensor_token"] for c in cameras)
-        if key not in rigs:
-            rigs[key] = _rig_of(db, [data[c] for c in cameras], cameras)
-        overlap[rows] = rigs[key].in_overlap(centers_ego)
+        if rig >= 0:
+            overlap[rows] = rigs[rig].in_overlap(centers_ego)
     return overlap, distance
-
-
-def _rig_of(db: NuScenesDB, sample_data_tokens: list[str], channels: list[str]) -> CameraRig:
-    rotations, translations, intrinsics, sizes = [], [], [], []
-    for token in sample_data_tokens:
-        rotation, translation, intrinsic = db.calibration_of(token)
-        record = db.get("sample_data", token)
-        rotations.append(rotation)
-        translations.append(translation)
-        intrinsics.append(intrinsic)
-        sizes.append((record["width"], record["height"]))
-    return CameraRig.from_calibration(channels, np.array(rotations), np.array(translations),
-                                      np.array(intrinsics), np.array(sizes))
 
 
 def format_summary(summary: dict) -> str:

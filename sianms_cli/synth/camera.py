@@ -13,13 +13,15 @@ The generator renders six cameras per keyframe with numpy alone, so the work per
 kept small:
 
 * per-pixel values are float32, and positions are taken relative to the camera, where
-  float32 still resolves tenths of a millimetre at a few hundred metres;
+  float32 still resolves a tenth of a millimetre at a kilometre;
 * a part's rays need no per-pixel rotation: in the part's frame the ray of pixel (u, v)
   is an affine function of (u, v) and the camera is one fixed point, both set up once
   per part (`_PartRays`);
 * parts whose rectangle holds many pixels are cast as 2-D blocks on views of the image
   buffers (no gathers, and a part hidden behind nearer scenery is skipped whole); the
   many small ones are cast together as flat (pixel, part) pairs in cache-sized chunks;
+* shading and the camera style run over bands of rows small enough for their temporaries
+  to stay in cache, with colours and vectors channel-first (3, n);
 * surface detail, shadows and reflections are evaluated only where needed: shadow rays
   start from sun-facing points inside the projection of a caster's sun-swept volume, the
   ground shader sees only the pixels where the ground is the nearest surface.
@@ -27,6 +29,7 @@ kept small:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from statistics import NormalDist
 
@@ -50,27 +53,38 @@ NEAR = 0.05             # metres; the near clipping plane (z-depth)
 SHADOW_OFFSET = 0.01    # metres; shadow rays start this far off the surface along its normal
 _CHUNK = 32_768         # (pixel, part) pairs per vectorised step, so temporaries stay in cache
 _BLOCK_AREA = 4_096     # parts with more pixels in their rectangle are cast as one 2-D block
+_BAND_PIXELS = 24_576   # pixels shaded together: a band of rows whose temporaries stay in cache
 _F32 = np.float32
 
-# Tone curve and sRGB encoding of exposed linear radiance x in [0, WHITE_POINT] (above it
-# is white), tabulated every 1/_LUT_STEPS, which is exact to within one 8-bit level; values
-# are 8-bit levels plus 0.5, so that truncation to uint8 rounds.
-_LUT_STEPS = 4096
-_LUT_X = np.arange(int(WHITE_POINT * _LUT_STEPS) + 1) / _LUT_STEPS
-_LUT_TONE = np.minimum(_LUT_X * (1.0 + _LUT_X / WHITE_POINT ** 2) / (1.0 + _LUT_X), 1.0)
-_TONE_LUT = (255.0 * np.where(_LUT_TONE <= 0.0031308, 12.92 * _LUT_TONE,
-                              1.055 * np.power(np.maximum(_LUT_TONE, 0.0031308), 1 / 2.4) - 0.055)
-             + 0.5).astype(np.float32)
-# Sensor noise is drawn as one random byte per sample, mapped through the 256 quantiles of
-# the standard normal (rescaled to unit variance): it looks the same as
-# rng.standard_normal and costs a tenth of it.
-_NORMAL_QUANTILES = np.array([NormalDist().inv_cdf((i + 0.5) / 256) for i in range(256)])
-_NORMAL_QUANTILES = (_NORMAL_QUANTILES / np.sqrt(np.mean(_NORMAL_QUANTILES ** 2))).astype(np.float32)
+_LUT_STEPS = 4096       # entries of the tone table per unit of exposed radiance
+
+
+def _tone_table() -> np.ndarray:
+    """Tone curve and sRGB encoding of exposed linear radiance x in [0, WHITE_POINT] (above
+    it is white): entry i holds the value at the middle of [i, i + 1) / _LUT_STEPS, fine
+    enough to be exact to within one 8-bit level, in 8-bit levels plus 0.5 so that
+    truncation to uint8 rounds."""
+    x = (np.arange(int(WHITE_POINT * _LUT_STEPS) + 1) + 0.5) / _LUT_STEPS
+    tone = np.minimum(x * (1.0 + x / WHITE_POINT ** 2) / (1.0 + x), 1.0)
+    srgb = np.where(tone <= 0.0031308, 12.92 * tone, 1.055 * np.power(np.maximum(tone, 0.0031308), 1 / 2.4) - 0.055)
+    return (255.0 * srgb + 0.5).astype(np.float32)
+
+
+def _normal_quantiles() -> np.ndarray:
+    """(256,) float32 quantiles of the standard normal at (i + 0.5) / 256, rescaled to unit
+    variance. Sensor noise is one random byte per sample mapped through them: it looks the
+    same as rng.standard_normal and costs a tenth of it."""
+    q = np.array([NormalDist().inv_cdf((i + 0.5) / 256) for i in range(256)])
+    return (q / np.sqrt(np.mean(q ** 2))).astype(np.float32)
+
+
+_TONE_LUT = _tone_table()
+_NORMAL_QUANTILES = _normal_quantiles()
 
 _CORNER_SIGNS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)],
                          np.float64)
 _BOX_EDGES = np.array([(i, j) for i in range(8) for j in range(i + 1, 8)
-                       if bin(i ^ j).count("1") == 1])
+                       if (i ^ j).bit_count() == 1])
 # The volume a cuboid sweeps towards the ground along the sun: its 8 corners and their 8
 # shadows; its outline is made of the box edges, the shadow edges and the sweep lines.
 _SWEPT_EDGES = np.concatenate([_BOX_EDGES, _BOX_EDGES + 8, [(i, i + 8) for i in range(8)]])
@@ -98,29 +112,41 @@ class CameraRender:
 class _View:
     """A pinhole camera. Pixel (u, v) (integer column and row) looks from `origin` (3,)
     (global, float64) along the global direction rays @ (u, v, 1), rays (3,3) float64,
-    scaled so that the ray parameter is the camera z-depth; world_to_cam (4,4)."""
+    scaled so that the ray parameter is the camera z-depth; the same direction in the
+    camera frame is camera_rays @ (u, v, 1); world_to_cam (4,4); side_planes (4,3) unit
+    inward normals, camera frame, of the planes through the camera and the image edges."""
 
     origin: np.ndarray
     rays: np.ndarray
+    camera_rays: np.ndarray
     intrinsic: np.ndarray
     world_to_cam: np.ndarray
     width: int
     height: int
+    side_planes: np.ndarray
 
 
 def _make_view(intrinsic, cam_to_world, width: int, height: int) -> _View:
+    """The view of a camera with intrinsic (3,3) K and cam_to_world (4,4), float64."""
     to_centre = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, 0.5], [0.0, 0.0, 1.0]])  # index -> pixel centre
-    rays = cam_to_world[:3, :3] @ np.linalg.inv(intrinsic) @ to_centre
-    return _View(cam_to_world[:3, 3].copy(), rays, intrinsic, np.linalg.inv(cam_to_world), width, height)
+    camera_rays = np.linalg.inv(intrinsic) @ to_centre
+    w, h = width - 0.5, height - 0.5
+    corners = (camera_rays @ np.array([[-0.5, w, w, -0.5], [-0.5, -0.5, h, h], [1.0, 1.0, 1.0, 1.0]])).T
+    planes = np.cross(corners, np.roll(corners, -1, axis=0))
+    planes *= np.sign(planes @ (camera_rays @ np.array([w / 2, h / 2, 1.0])))[:, None]
+    planes /= np.linalg.norm(planes, axis=1, keepdims=True)
+    return _View(cam_to_world[:3, 3].copy(), cam_to_world[:3, :3] @ camera_rays, camera_rays, intrinsic,
+                 np.linalg.inv(cam_to_world), width, height, planes)
 
 
-def part_corners(parts: Parts) -> np.ndarray:
-    """(M,8,3) corners of each part, global frame; corner k has signs `_CORNER_SIGNS[k]`."""
-    local = _CORNER_SIGNS[None, :, :] * parts.half_size[:, None, :]
-    c, s = np.cos(parts.yaw)[:, None], np.sin(parts.yaw)[:, None]
+def _box_corners(center: np.ndarray, half_size: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """(M,8,3) corners of M yaw-rotated boxes (center (M,3), half_size (M,3), yaw (M,)),
+    global frame; corner k has signs `_CORNER_SIGNS[k]`."""
+    local = _CORNER_SIGNS[None, :, :] * half_size[:, None, :]
+    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
     x = c * local[..., 0] - s * local[..., 1]
     y = s * local[..., 0] + c * local[..., 1]
-    return np.stack([x, y, local[..., 2]], axis=-1) + parts.center[:, None, :]
+    return np.stack([x, y, local[..., 2]], axis=-1) + center[:, None, :]
 
 
 def project_rects(points_cam: np.ndarray, edges: np.ndarray, intrinsic: np.ndarray,
@@ -161,24 +187,49 @@ def _camera_points(points: np.ndarray, view: _View) -> np.ndarray:
     return points @ view.world_to_cam[:3, :3].T + view.world_to_cam[:3, 3]
 
 
-def _pixel_rays(view: _View) -> np.ndarray:
-    """(3,H*W) float32 global ray of every pixel, row-major (camera-frame z component 1)."""
+def _in_frustum(centres: np.ndarray, radii: np.ndarray, view: _View) -> np.ndarray:
+    """(M,) bool: spheres (centres (M,3) global, radii (M,)) that may reach the view
+    frustum: in front of the NEAR plane and inside its four side planes. A cheap test
+    that spares most parts outside this camera's view the exact projection."""
+    c = _camera_points(centres, view)
+    return (c[:, 2] + radii > NEAR) & np.all(c @ view.side_planes.T > -radii[:, None], axis=1)
+
+
+def _pixel_rays(view: _View, rows: slice) -> np.ndarray:
+    """(3,n) float32 global ray of every pixel of a band of rows, row-major (camera-frame z
+    component 1)."""
     along_u = view.rays[:, :1] * np.arange(view.width) + view.rays[:, 2:]
-    along_v = view.rays[:, 1:2] * np.arange(view.height)
+    along_v = view.rays[:, 1:2] * np.arange(rows.start, rows.stop)
     return (along_v.astype(_F32)[:, :, None] + along_u.astype(_F32)[:, None, :]).reshape(3, -1)
+
+
+def _ray_lengths(view: _View) -> np.ndarray:
+    """(H*W,) float32 length of every pixel's ray (metres per metre of z-depth)."""
+    x = (view.camera_rays[0, 0] * np.arange(view.width)[None, :]
+         + (view.camera_rays[0, 1] * np.arange(view.height) + view.camera_rays[0, 2])[:, None]).astype(_F32)
+    y = (view.camera_rays[1, 1] * np.arange(view.height) + view.camera_rays[1, 2]).astype(_F32)[:, None]
+    return np.sqrt(x * x + (y * y + 1)).reshape(-1)
 
 
 def _ground_depth(view: _View, ray_len: np.ndarray) -> np.ndarray:
     """(H*W,) float32 z-depth at which each pixel's ray meets the ground z = 0, inf where it
-    goes up, or meets it beyond GROUND_RANGE (computed in float64: near the horizon the
-    ray's slope is tiny)."""
-    slope = (np.arange(view.height)[:, None] * view.rays[2, 1]
-             + (np.arange(view.width) * view.rays[2, 0] + view.rays[2, 2])[None, :]).ravel()
+    goes up, or meets it beyond GROUND_RANGE."""
+    depth = np.full((view.height, view.width), np.inf, _F32)
     height = view.origin[2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = -height / slope
-    hit = (slope < 0.0) & (height > 0.0) & (t * ray_len < GROUND_RANGE)
-    return np.where(hit, t, np.inf).astype(_F32)
+    # The slope (global z of the ray) is a u + b v + c: only the rows where it is negative
+    # somewhere, one range of rows, can see the ground.
+    a, b, c = view.rays[2]
+    row_slope = b * np.arange(view.height) + c
+    rows = np.flatnonzero(row_slope + min(0.0, a * (view.width - 1)) < 0.0)
+    if height <= 0.0 or len(rows) == 0:
+        return depth.reshape(-1)
+    rows = slice(rows[0], rows[-1] + 1)
+    slope = a * np.arange(view.width) + row_slope[rows, None]
+    with np.errstate(divide="ignore"):
+        # float64 division: near the horizon the slope is tiny. Negative where the ray goes up.
+        t = (-height / slope).astype(_F32)
+    np.copyto(depth[rows], t, where=(t > 0.0) & (t * ray_len.reshape(depth.shape)[rows] < GROUND_RANGE))
+    return depth.reshape(-1)
 
 
 # --- Casting parts into the depth buffer ---------------------------------------------------
@@ -201,9 +252,9 @@ class _PartRays:
     def entry_depth(self, each, u, v) -> np.ndarray:
         """z-depth (float32, inf for a miss) at which the rays of pixels (u, v) enter parts.
 
-        each(a) gives the value of per-part array a (M,) for every ray: one part's scalar
-        against a 2-D block of pixels (u (1,w), v (h,1)), or the repeated values of flat
-        (pixel, part) pairs (u, v (n,)).
+        each(a) gives the value of per-part array a (M,) for every ray: `_per_part` for a
+        2-D block of pixels of one part (u (1,w), v (h,1)), `_per_pair` for flat (pixel,
+        part) pairs (u, v (n,)).
         """
         d = [each(self.ray_map[k, 0]) * u + (each(self.ray_map[k, 1]) * v + each(self.ray_map[k, 2]))
              for k in range(3)]
@@ -212,6 +263,7 @@ class _PartRays:
 
 
 def _part_rays(parts: Parts, view: _View, nearest: np.ndarray) -> _PartRays:
+    """The camera's rays in the frames of all parts; nearest (M,) as in `_PartRays`."""
     c, s = np.cos(parts.yaw), np.sin(parts.yaw)
     to_part = np.zeros((len(parts), 3, 3))  # rotates global vectors into each part's frame
     to_part[:, 0, 0], to_part[:, 0, 1], to_part[:, 1, 0], to_part[:, 1, 1] = c, s, -s, c
@@ -221,6 +273,16 @@ def _part_rays(parts: Parts, view: _View, nearest: np.ndarray) -> _PartRays:
                      lower=np.ascontiguousarray((-parts.half_size - camera).T, _F32),
                      upper=np.ascontiguousarray((parts.half_size - camera).T, _F32),
                      nearest=nearest.astype(_F32))
+
+
+def _per_part(m: int):
+    """each(a) for a block of pixels of part m: a[m], one scalar for all of them."""
+    return lambda a: a[m]
+
+
+def _per_pair(part: np.ndarray, counts: np.ndarray):
+    """each(a) for flat pairs, counts[i] of them for part[i]: a[part[i]] repeated."""
+    return lambda a: np.repeat(a[part], counts)
 
 
 def _pair_chunks(rects: np.ndarray, width: int):
@@ -306,6 +368,14 @@ class _Coverage:
                         np.int64).reshape(self.n_objects)
 
 
+def _tiles(rect):
+    """Rectangle (u0, v0, u1, v1) split into bands of rows of at most _BAND_PIXELS pixels,
+    so that a block's temporaries stay in cache and hidden bands are skipped."""
+    u0, v0, u1, v1 = rect
+    rows = max(1, _BAND_PIXELS // (u1 - u0 + 1))
+    return [(u0, top, u1, min(top + rows - 1, v1)) for top in range(v0, v1 + 1, rows)]
+
+
 def _cast_block(rays: _PartRays, m: int, rect, depth2d, part2d, cull2d, axes) -> tuple[tuple, np.ndarray] | None:
     """Cast part m's rays over its rectangle (u0, v0, u1, v1) as one 2-D block, in place.
 
@@ -323,7 +393,7 @@ def _cast_block(rays: _PartRays, m: int, rect, depth2d, part2d, cull2d, axes) ->
     window = (slice(v0 + rows[0], v0 + rows[-1] + 1), slice(u0 + cols[0], u0 + cols[-1] + 1))
     open_ = open_[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
     u, v = axes[0][window[1]][None, :], axes[1][window[0]][:, None]
-    t = rays.entry_depth(lambda a: a[m], u, v)
+    t = rays.entry_depth(_per_part(m), u, v)
     depth = depth2d[window]
     closer = t < depth
     np.copyto(depth, t, where=closer)
@@ -338,7 +408,7 @@ def _cast_pairs(rays: _PartRays, group: np.ndarray, rects: np.ndarray, width: in
     in `_cast_block`; coverage: marks the pixels covered by objects, or None."""
     for first, counts, u, v, pix in _pair_chunks(rects, width):
         part = group[first:first + len(counts)]
-        t = rays.entry_depth(lambda a: np.repeat(a[part], counts), u, v)
+        t = rays.entry_depth(_per_pair(part, counts), u, v)
         part = np.repeat(part, counts)
         if coverage is not None:
             q = np.flatnonzero((t < np.inf) & (cull[pix] > rays.nearest[part]))
@@ -364,11 +434,16 @@ def _cast_parts(parts: Parts, view: _View, depth: np.ndarray, part_buf: np.ndarr
     counted; scenery follows front to back, so that a part hidden by nearer ones is
     mostly skipped.
     """
-    corners_cam = _camera_points(part_corners(parts), view)
-    rects, in_view = project_rects(corners_cam, _BOX_EDGES, view.intrinsic, view.width, view.height)
-    rays = _part_rays(parts, view, np.maximum(corners_cam[..., 2].min(axis=1), NEAR))
-    objects = np.flatnonzero(in_view & (parts.owner >= 0))
-    scenery = np.flatnonzero(in_view & (parts.owner < 0))
+    near = np.flatnonzero(_in_frustum(parts.center, parts.bounding_radius(), view))
+    corners_cam = _camera_points(_box_corners(parts.center[near], parts.half_size[near], parts.yaw[near]), view)
+    nearest = np.full(len(parts), NEAR)
+    nearest[near] = np.maximum(corners_cam[..., 2].min(axis=1), NEAR)
+    rects = np.zeros((len(parts), 4), np.int64)
+    rects[near], in_view = project_rects(corners_cam, _BOX_EDGES, view.intrinsic, view.width, view.height)
+    near = near[in_view]
+    rays = _part_rays(parts, view, nearest)
+    objects = near[parts.owner[near] >= 0]
+    scenery = near[parts.owner[near] < 0]
     scenery = scenery[np.argsort(rays.nearest[scenery], kind="stable")]
     coverage = _Coverage(parts.owner, rects, objects, n_objects)
     ground = depth.copy()
@@ -378,12 +453,13 @@ def _cast_parts(parts: Parts, view: _View, depth: np.ndarray, part_buf: np.ndarr
         small, large = _split_by_area(group, rects)
         _cast_pairs(rays, small, rects[small], view.width, depth, part_buf, cull, cover)
         for m in large:
-            cast = _cast_block(rays, m, rects[m], depth.reshape(shape), part_buf.reshape(shape),
-                               cull.reshape(shape), axes)
-            if cast is not None and cover is not None and cover.counted(m):
-                window, hit = cast
-                rect = (window[1].start, window[0].start, window[1].stop - 1, window[0].stop - 1)
-                cover.block(m, rect)[...] |= hit
+            for tile in _tiles(rects[m]):
+                cast = _cast_block(rays, m, tile, depth.reshape(shape), part_buf.reshape(shape),
+                                   cull.reshape(shape), axes)
+                if cast is not None and cover is not None and cover.counted(m):
+                    window, hit = cast
+                    rect = (window[1].start, window[0].start, window[1].stop - 1, window[0].stop - 1)
+                    cover.block(m, rect)[...] |= hit
     return coverage.pixels()
 
 
@@ -393,12 +469,13 @@ def _cast_parts(parts: Parts, view: _View, depth: np.ndarray, part_buf: np.ndarr
 class _Casters:
     """Shadow-casting parts, for rays towards the sun from camera-relative points.
 
-    part (C,) part index; cos, sin (C,) float32 of the yaw; centre (3,C) float32 part
-    centre minus the camera position, global axes; half (3,C) float32 half size; sun
-    (3,C) float32 sun direction in each part's frame.
+    rects (C,4) int64 pixel rectangle (u0, v0, u1, v1, inclusive) covering each caster's
+    sun-swept volume (the part and its shadow on the ground); cos, sin (C,) float32 of the
+    yaw; centre (3,C) float32 part centre minus the camera position, global axes; half
+    (3,C) float32 half size; sun (3,C) float32 sun direction in each part's frame.
     """
 
-    part: np.ndarray
+    rects: np.ndarray
     cos: np.ndarray
     sin: np.ndarray
     centre: np.ndarray
@@ -416,44 +493,51 @@ class _Casters:
                                          [each(d) for d in self.sun])
         return (t_near <= t_far) & (t_near > T_MIN)
 
+    def shadow(self, start: np.ndarray, rows: slice, width: int) -> np.ndarray:
+        """(n,) bool: the shadow ray of each pixel of a band of rows hits a caster.
 
-def _casters(parts: Parts, part: np.ndarray, view: _View, sun: np.ndarray) -> _Casters:
-    c, s = np.cos(parts.yaw[part]), np.sin(parts.yaw[part])
-    sun_local = np.stack([c * sun[0] + s * sun[1], c * sun[1] - s * sun[0], np.full(len(part), sun[2])])
-    return _Casters(part, c.astype(_F32), s.astype(_F32), (parts.center[part] - view.origin).T.astype(_F32),
-                    parts.half_size[part].T.astype(_F32), sun_local.astype(_F32))
-
-
-def _shadow_mask(parts: Parts, view: _View, sun: np.ndarray, start: tuple) -> np.ndarray:
-    """(H*W,) bool: the shadow ray of each pixel hits an object part.
-
-    start: 3 (H*W,) float32 arrays, camera-relative start point of each pixel's shadow ray,
-    NaN where there is none. A pixel is tested against the parts whose sun-swept volume
-    (the part and its shadow on the ground) projects over it. Objects cast shadows, scenery
-    does not (its shadows would cost more rays than the whole image).
-    """
-    shadow = np.zeros(view.width * view.height, bool)
-    part = np.flatnonzero(parts.owner >= 0)
-    if sun[2] <= 1e-3 or len(part) == 0:
+        start (3,n) float32: camera-relative start point of each pixel's shadow ray, NaN
+        where there is none. A pixel is tested against the casters whose rectangle covers it.
+        """
+        shadow = np.zeros(start.shape[1], bool)
+        rects = self.rects.copy()
+        rects[:, 1] = np.maximum(rects[:, 1], rows.start) - rows.start
+        rects[:, 3] = np.minimum(rects[:, 3], rows.stop - 1) - rows.start
+        small, large = _split_by_area(np.flatnonzero(rects[:, 1] <= rects[:, 3]), rects)
+        for first, counts, _, _, pix in _pair_chunks(rects[small], width):
+            caster = small[first:first + len(counts)]
+            hit = self.blocks_sun(_per_pair(caster, counts), *_take(start, pix))
+            shadow[pix[hit]] = True
+        shape = (rows.stop - rows.start, width)
+        for i in large:
+            u0, v0, u1, v1 = rects[i]
+            window = (slice(v0, v1 + 1), slice(u0, u1 + 1))
+            block = [a.reshape(shape)[window] for a in start]
+            shadow.reshape(shape)[window] |= self.blocks_sun(_per_part(i), *block)
         return shadow
-    corners = part_corners(parts)[part]
+
+
+def _shadow_casters(parts: Parts, view: _View, sun: np.ndarray) -> _Casters | None:
+    """The objects' parts that may cast a shadow into the image; None when none does.
+    Scenery casts no shadows: they would cost more rays than the whole image."""
+    if sun[2] <= 1e-3:
+        return None
+    # Each swept volume lies within a sphere around the middle of the part's sweep.
+    radius = parts.bounding_radius()
+    sweep = np.maximum(parts.center[:, 2] + radius, 0.0) / sun[2]
+    part = np.flatnonzero((parts.owner >= 0) & _in_frustum(parts.center - 0.5 * sweep[:, None] * sun,
+                                                           radius + 0.5 * sweep, view))
+    if len(part) == 0:
+        return None
+    corners = _box_corners(parts.center[part], parts.half_size[part], parts.yaw[part])
     on_ground = corners - (np.maximum(corners[..., 2:3], 0.0) / sun[2]) * sun
     swept = _camera_points(np.concatenate([corners, on_ground], axis=1), view)
     rects, valid = project_rects(swept, _SWEPT_EDGES, view.intrinsic, view.width, view.height)
-    casters = _casters(parts, part[valid], view, sun)
-    rects = rects[valid]
-    small, large = _split_by_area(np.arange(len(rects)), rects)
-    for first, counts, _, _, pix in _pair_chunks(rects[small], view.width):
-        caster = small[first:first + len(counts)]
-        hit = casters.blocks_sun(lambda a: np.repeat(a[caster], counts), start[0][pix], start[1][pix], start[2][pix])
-        shadow[pix[hit]] = True
-    shape = (view.height, view.width)
-    for i in large:
-        u0, v0, u1, v1 = rects[i]
-        window = (slice(v0, v1 + 1), slice(u0, u1 + 1))
-        block = [a.reshape(shape)[window] for a in start]
-        shadow.reshape(shape)[window] |= casters.blocks_sun(lambda a: a[i], *block)
-    return shadow
+    part = part[valid]
+    c, s = np.cos(parts.yaw[part]), np.sin(parts.yaw[part])
+    sun_local = np.stack([c * sun[0] + s * sun[1], c * sun[1] - s * sun[0], np.full(len(part), sun[2])])
+    return _Casters(rects[valid], c.astype(_F32), s.astype(_F32), (parts.center[part] - view.origin).T.astype(_F32),
+                    parts.half_size[part].T.astype(_F32), sun_local.astype(_F32))
 
 
 # --- Shading -------------------------------------------------------------------------------
@@ -462,14 +546,21 @@ def _shadow_mask(parts: Parts, view: _View, sun: np.ndarray, start: tuple) -> np
 # 1-D gathers.
 
 def _take(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """a[:, idx] of a (k, N) array, one row at a time (faster than 2-D fancy indexing)."""
-    return np.stack([row[idx] for row in a])
+    """a[:, idx] of a (k, N) array (idx within [-N, N): -1 is the last column). numpy's
+    2-D fancy indexing, or take with the default bounds check, is several times slower."""
+    return np.take(a, idx, axis=1, mode="wrap")
 
 
 def _put(a: np.ndarray, idx: np.ndarray, values: np.ndarray) -> None:
     """a[:, idx] = values for a (k, N) array and values (k, n), one row at a time."""
     for row, value in zip(a, values):
         row[idx] = value
+
+
+def _wrap(x: np.ndarray, period) -> np.ndarray:
+    """x modulo period, in [0, period) up to rounding; numpy's float `%` is some twenty
+    times slower."""
+    return x - np.floor(x / period) * period
 
 
 def _sky_radiance(dirs: np.ndarray, sun: np.ndarray) -> np.ndarray:
@@ -489,27 +580,51 @@ def _sky_radiance(dirs: np.ndarray, sun: np.ndarray) -> np.ndarray:
 class _Hits:
     """Q points on part surfaces: part (Q,) index; local (3,Q) float32 coordinates in the
     part's frame (the one along the face normal snapped onto the face); half (3,Q)
-    float32 half size; axis (Q,) int8 face normal axis (0 x, 1 y, 2 z); normal (3,Q)
-    float32 global outward normal."""
+    float32 half size; axis (Q,) int8 face normal axis (0 x, 1 y, 2 z)."""
 
     part: np.ndarray
     local: np.ndarray
     half: np.ndarray
     axis: np.ndarray
-    normal: np.ndarray
 
-    def take(self, idx: np.ndarray) -> "_Hits":
-        return _Hits(self.part[idx], _take(self.local, idx), _take(self.half, idx), self.axis[idx],
-                     _take(self.normal, idx))
+    def take(self, idx: np.ndarray) -> _Hits:
+        """The points idx (n,)."""
+        return _Hits(np.take(self.part, idx), _take(self.local, idx), _take(self.half, idx), np.take(self.axis, idx))
 
 
-def _part_hits(parts: Parts, part: np.ndarray, points: np.ndarray, view: _View) -> _Hits:
-    """Surface geometry of camera-relative points (3,Q) float32 on parts part (Q,)."""
-    yaw = parts.yaw.astype(_F32)
-    c, s = np.cos(yaw)[part], np.sin(yaw)[part]
-    rel = points - _take((parts.center - view.origin).T.astype(_F32), part)
+@dataclass(frozen=True)
+class _PartTable:
+    """Per-part values for shading M parts: centre (3,M) float32 minus the camera position;
+    cos, sin (M,) float32 of the yaw; half (3,M) float32 half size; albedo (3,M) float32;
+    material (M,); owner (M,) intp (numpy gathers by intp indices several times faster
+    than by int32 ones); facade_seed (M,) float32 in [0, 1), varies facades."""
+
+    centre: np.ndarray
+    cos: np.ndarray
+    sin: np.ndarray
+    half: np.ndarray
+    albedo: np.ndarray
+    material: np.ndarray
+    owner: np.ndarray
+    facade_seed: np.ndarray
+
+
+def _part_table(parts: Parts, view: _View) -> _PartTable:
+    """The shading table of every part."""
+    seed = (np.abs(np.sin(parts.center[:, 0] * 12.9898 + parts.center[:, 1] * 78.233)) * 43758.55) % 1.0
+    return _PartTable(np.ascontiguousarray((parts.center - view.origin).T, _F32), np.cos(parts.yaw).astype(_F32),
+                      np.sin(parts.yaw).astype(_F32), np.ascontiguousarray(parts.half_size.T, _F32),
+                      np.ascontiguousarray(parts.albedo.T, _F32), parts.material, parts.owner.astype(np.intp),
+                      seed.astype(_F32))
+
+
+def _part_hits(table: _PartTable, part: np.ndarray, points: np.ndarray) -> tuple[_Hits, np.ndarray]:
+    """Surface geometry of camera-relative points (3,Q) float32 on parts part (Q,), and
+    the global outward normal (3,Q) float32 of the faces they lie on."""
+    c, s = np.take(table.cos, part), np.take(table.sin, part)
+    rel = points - _take(table.centre, part)
     local = np.stack([c * rel[0] + s * rel[1], c * rel[1] - s * rel[0], rel[2]])
-    half = _take(parts.half_size.T.astype(_F32), part)
+    half = _take(table.half, part)
     ratio = np.abs(local) / half
     axis = np.where((ratio[0] >= ratio[1]) & (ratio[0] >= ratio[2]), 0,
                     np.where(ratio[1] >= ratio[2], 1, 2)).astype(np.int8)
@@ -518,29 +633,32 @@ def _part_hits(parts: Parts, part: np.ndarray, points: np.ndarray, view: _View) 
     local = np.where(on_face, sign * half, local)
     n_local = np.where(on_face, sign, _F32(0.0))
     normal = np.stack([c * n_local[0] - s * n_local[1], s * n_local[0] + c * n_local[1], n_local[2]])
-    return _Hits(part, local, half, axis, normal)
+    return _Hits(part, local, half, axis), normal
 
 
 @dataclass(frozen=True)
 class _Looks:
     """Per-owner appearance, channel-first, with a last column (index -1: scenery) of plain
     looks: secondary, glass (3,N+1) float32; pattern (N+1,); pattern_param (4,N+1) float32;
-    gloss (N+1,) float32."""
+    gloss (N+1,) float32; patterned (N+1,) bool: the pattern draws on paint."""
 
     secondary: np.ndarray
     glass: np.ndarray
     pattern: np.ndarray
     pattern_param: np.ndarray
     gloss: np.ndarray
+    patterned: np.ndarray
 
 
 def _looks(appearances, parts: Parts, n_objects: int) -> _Looks:
+    """The looks of every owner of parts (see `render_camera` for appearances, n_objects)."""
     table = stack_appearances(appearances, max(n_objects, int(parts.owner.max(initial=-1)) + 1))
     plain = {"secondary": np.zeros(3), "glass": np.array([0.03, 0.04, 0.05]), "pattern": SOLID,
              "pattern_param": np.zeros(4), "gloss": 0.3}
-    columns = {name: np.concatenate([getattr(table, name), np.asarray([value], getattr(table, name).dtype)])
+    columns = {name: np.ascontiguousarray(np.concatenate([getattr(table, name),
+                                                          np.asarray([value], getattr(table, name).dtype)]).T)
                for name, value in plain.items()}
-    return _Looks(**{name: np.ascontiguousarray(value.T) for name, value in columns.items()})
+    return _Looks(**columns, patterned=np.isin(columns["pattern"], (SIDE_STRIPE, LOWER_BODY, DECAL)))
 
 
 def _greenhouse(hits: _Hits, frame_colour, glass_colour):
@@ -548,7 +666,7 @@ def _greenhouse(hits: _Hits, frame_colour, glass_colour):
     (x, y, z), (hx, hy, hz), axis = hits.local, hits.half, hits.axis
     n_win = np.maximum(1, np.round(2 * hx / _F32(1.25)))
     pitch = 2 * hx / n_win
-    to_pillar = np.abs((x + hx + pitch / 2) % pitch - pitch / 2)
+    to_pillar = np.abs(_wrap(x + hx + pitch / 2, pitch) - pitch / 2)
     frame = np.where(axis == 1, (z > hz - _F32(0.07)) | (to_pillar < _F32(0.055)) | (z < -hz + _F32(0.03)),
                      (np.abs(y) > hy - _F32(0.08)) | (z > hz - _F32(0.07)) | (z < -hz + _F32(0.04)))
     frame |= axis == 2
@@ -563,13 +681,13 @@ def _facade(hits: _Hits, wall, glass_colour, seed):
     height = z + hz
     bay = _F32(2.6) + _F32(1.4) * seed
     floor = _F32(3.1) + _F32(0.4) * seed
-    fu = (along + along_half) % bay - bay / 2
-    fv = height % floor
+    fu = _wrap(along + along_half, bay) - bay / 2
+    fv = _wrap(height, floor)
     side = axis != 2
     upper = (height > 3.6) & (np.abs(along) < along_half - _F32(0.8)) & (height < 2 * hz - _F32(1.0)) & side
     window = upper & (np.abs(fu) < _F32(0.3) * bay) & (fv > 0.9) & (fv < 2.4)
     shop = (height > 0.5) & (height < 2.9) & (np.abs(along) < along_half - _F32(0.6)) & \
-        (np.abs((along + along_half) % _F32(4.0) - _F32(2.0)) < 1.85) & side
+        (np.abs(_wrap(along + along_half, _F32(4.0)) - _F32(2.0)) < 1.85) & side
     glass = window | shop
     sill = upper & (np.abs(fu) < _F32(0.3) * bay + _F32(0.08)) & (fv > 0.78) & (fv <= 0.9)
     colour = np.where(glass, glass_colour, wall)
@@ -592,11 +710,11 @@ def _paint_pattern(hits: _Hits, base, pattern, param, secondary):
     return np.where(stripe | lower | decal, secondary, base)
 
 
-def _surface(parts: Parts, hits: _Hits, looks: _Looks):
+def _surface(table: _PartTable, hits: _Hits, looks: _Looks):
     """Albedo (3,Q) float32, glass mask (Q,) and gloss (Q,) float32 of part surface points."""
-    material = parts.material[hits.part]
-    owner = parts.owner[hits.part]
-    albedo = _take(parts.albedo.T, hits.part)
+    material = np.take(table.material, hits.part)
+    owner = np.take(table.owner, hits.part)
+    albedo = _take(table.albedo, hits.part)
     glass = material == shapes.HEADLIGHT
     gloss = np.zeros(len(material), _F32)
 
@@ -605,7 +723,7 @@ def _surface(parts: Parts, hits: _Hits, looks: _Looks):
     # Patterns are drawn on the large paint parts of patterned objects only.
     hx, hz = hits.half[0], hits.half[2]
     idx = np.flatnonzero((material == shapes.PAINT) & (owner >= 0) & (hz >= 0.22) & (hx >= 0.4))
-    idx = idx[np.isin(looks.pattern[owner[idx]], (SIDE_STRIPE, LOWER_BODY, DECAL))]
+    idx = idx[looks.patterned[owner[idx]]]
     if len(idx):
         own = owner[idx]
         _put(albedo, idx, _paint_pattern(hits.take(idx), _take(albedo, idx), looks.pattern[own],
@@ -619,9 +737,8 @@ def _surface(parts: Parts, hits: _Hits, looks: _Looks):
 
     idx = np.flatnonzero(material == shapes.FACADE)
     if len(idx):
-        centre = parts.center[hits.part[idx]]
-        seed = ((np.abs(np.sin(centre[:, 0] * 12.9898 + centre[:, 1] * 78.233)) * 43758.55) % 1.0).astype(_F32)
-        colour, glass[idx] = _facade(hits.take(idx), _take(albedo, idx), _take(looks.glass, owner[idx]), seed)
+        colour, glass[idx] = _facade(hits.take(idx), _take(albedo, idx), _take(looks.glass, owner[idx]),
+                                     np.take(table.facade_seed, hits.part[idx]))
         _put(albedo, idx, colour)
 
     idx = np.flatnonzero((material == shapes.TYRE) & (hx > 0.2) & (hits.axis == 1))
@@ -633,20 +750,20 @@ def _surface(parts: Parts, hits: _Hits, looks: _Looks):
 
     idx = np.flatnonzero(material == shapes.BARRIER_STRIPES)
     if len(idx):
-        white = ((hits.local[1, idx] + hits.half[1, idx]) // _F32(0.5)) % 2 == 1
+        white = np.floor((np.take(hits.local[1], idx) + np.take(hits.half[1], idx)) / _F32(0.5)).astype(np.int64) % 2 == 1
         _put(albedo, idx, np.where(white, _F32(0.8), _take(albedo, idx)))
 
     gloss[glass] = 1.0
     return albedo, glass, gloss
 
 
-def _part_radiance(parts: Parts, looks: _Looks, hits: _Hits, z_world, view_dir, shadow, sun):
+def _part_radiance(table: _PartTable, looks: _Looks, hits: _Hits, n, z_world, view_dir, shadow, sun):
     """(3,Q) float32 linear radiance leaving part surface points towards the camera.
 
-    z_world (Q,) float32 height above the ground; view_dir(idx) -> (3,n) float32 unit
-    rays of points idx; shadow (Q,) bool; sun (3,) float32."""
-    albedo, glass, gloss = _surface(parts, hits, looks)
-    n = hits.normal
+    n (3,Q) float32 global normal; z_world (Q,) float32 height above the ground;
+    view_dir(idx) -> (3,n) float32 unit rays of points idx; shadow (Q,) bool; sun (3,)
+    float32."""
+    albedo, glass, gloss = _surface(table, hits, looks)
     cos_sun = np.maximum(n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2], 0.0) * ~shadow
     # Contact darkening: surfaces near the ground see less sky (ambient occlusion).
     occlusion = np.clip(_F32(0.45) + _F32(0.55 / 0.7) * z_world, 0.45, 1.0)
@@ -681,58 +798,77 @@ def _hazy(radiance: np.ndarray, distance: np.ndarray) -> np.ndarray:
     return HORIZON[:, None] + (radiance - HORIZON[:, None]) * clear
 
 
-def _shade(parts: Parts, appearances, ground_shader, view: _View, sun: np.ndarray, n_objects: int,
-           depth: np.ndarray, part_buf: np.ndarray, rays: np.ndarray, ray_len: np.ndarray) -> np.ndarray:
-    """(3,H*W) float32 linear radiance of every pixel from the depth-buffer contents."""
-    sun32 = sun.astype(_F32)
+@dataclass(frozen=True)
+class _Scene:
+    """What shading needs besides the buffers: the parts' table, their owners' looks, the
+    ground shader, the view, the unit sun direction (3,) float64, and the shadow casters
+    (None when nothing casts a shadow)."""
+
+    part_table: _PartTable
+    looks: _Looks
+    ground_shader: Callable[[np.ndarray], np.ndarray]
+    view: _View
+    sun: np.ndarray
+    casters: _Casters | None
+
+
+def _shade(scene: _Scene, depth: np.ndarray, part_buf: np.ndarray, ray_len: np.ndarray, rows: slice) -> np.ndarray:
+    """(3,n) float32 linear radiance of the pixels of a band of rows, from the band's
+    depth (n,), part_buf (n,) intp and ray_len (n,)."""
+    view = scene.view
+    sun = scene.sun.astype(_F32)
+    rays = _pixel_rays(view, rows)
     radiance = np.empty((3, len(depth)), _F32)
     sky = np.flatnonzero(depth == np.inf)
-    _put(radiance, sky, _sky_radiance(_take(rays, sky) / ray_len[sky], sun32))
+    _put(radiance, sky, _sky_radiance(_take(rays, sky) / ray_len[sky], sun))
 
     ground = np.flatnonzero((part_buf < 0) & (depth < np.inf))
     on_part = np.flatnonzero(part_buf >= 0)
     ground_points = depth[ground] * _take(rays, ground)  # camera-relative
     part_points = depth[on_part] * _take(rays, on_part)
-    hits = _part_hits(parts, part_buf[on_part], part_points, view)
+    hits, normal = _part_hits(scene.part_table, part_buf[on_part], part_points)
 
-    # Shadow rays start just off the sun-facing surfaces; the others are in their own shade.
-    start = np.full((3, len(depth)), np.nan, _F32)
-    start[0, ground], start[1, ground] = ground_points[0], ground_points[1]
-    start[2, ground] = ground_points[2] + _F32(SHADOW_OFFSET)
-    facing = np.flatnonzero(hits.normal[0] * sun32[0] + hits.normal[1] * sun32[1] + hits.normal[2] * sun32[2] > 0)
-    _put(start, on_part[facing], part_points[:, facing] + _F32(SHADOW_OFFSET) * hits.normal[:, facing])
-    shadow = _shadow_mask(parts, view, sun, start)
+    shadow = np.zeros(len(depth), bool)
+    if scene.casters is not None:
+        # Shadow rays start just off the sun-facing surfaces; the others are in their own shade.
+        start = np.full((3, len(depth)), np.nan, _F32)
+        _put(start, ground, ground_points + np.array([[0.0], [0.0], [SHADOW_OFFSET]], _F32))
+        facing = np.flatnonzero(normal[0] * sun[0] + normal[1] * sun[1] + normal[2] * sun[2] > 0)
+        _put(start, on_part[facing], _take(part_points, facing) + _F32(SHADOW_OFFSET) * _take(normal, facing))
+        shadow = scene.casters.shadow(start, rows, view.width)
 
-    xy = view.origin[:2] + ground_points[:2].T.astype(np.float64)
-    _put(radiance, ground, _hazy(_ground_radiance(ground_shader, xy, shadow[ground], sun32),
-                                 depth[ground] * ray_len[ground]))
+    if len(ground):
+        xy = view.origin[:2] + ground_points[:2].T.astype(np.float64)
+        _put(radiance, ground, _hazy(_ground_radiance(scene.ground_shader, xy, shadow[ground], sun),
+                                     depth[ground] * ray_len[ground]))
     if len(on_part):
         z_world = part_points[2] + _F32(view.origin[2])
-        radiance_parts = _part_radiance(parts, _looks(appearances, parts, n_objects), hits, z_world,
+        radiance_parts = _part_radiance(scene.part_table, scene.looks, hits, normal, z_world,
                                         lambda idx: _take(rays, on_part[idx]) / ray_len[on_part[idx]],
-                                        shadow[on_part], sun32)
+                                        shadow[on_part], sun)
         _put(radiance, on_part, _hazy(radiance_parts, depth[on_part] * ray_len[on_part]))
     return radiance
 
 
-def _apply_style(radiance: np.ndarray, style: CameraStyle, view: _View, rng: np.random.Generator) -> np.ndarray:
-    """Linear radiance (3,H*W) float32 -> uint8 sRGB (H,W,3): exposure, white balance,
-    vignetting, tone curve, sRGB encoding, sensor noise."""
+def _apply_style(radiance: np.ndarray, style: CameraStyle, view: _View, rows: slice,
+                 rng: np.random.Generator) -> np.ndarray:
+    """Linear radiance (3,n) float32 of a band of rows (overwritten) -> its uint8 sRGB
+    (rows,W,3): exposure, white balance, vignetting, tone curve, sRGB encoding, sensor
+    noise."""
     width, height = view.width, view.height
     gain = EXPOSURE * 2.0 ** style.exposure_stops * np.asarray(style.white_balance, np.float64)
-    u = (np.arange(width) + 0.5 - view.intrinsic[0, 2]) / (width / 2)
-    v = (np.arange(height) + 0.5 - view.intrinsic[1, 2]) / (width / 2)
-    vignette = 1.0 - style.vignetting * (u[None, :] ** 2 + v[:, None] ** 2) / (1.0 + (height / width) ** 2)
-    # The tone table's index of each value: exposed radiance times _LUT_STEPS, rounded.
-    index = radiance * (gain * _LUT_STEPS).astype(_F32)[:, None]
-    index *= vignette.astype(_F32).reshape(-1)
-    index += _F32(0.5)
-    np.minimum(index, _F32(len(_TONE_LUT) - 1), out=index)
-    level = _TONE_LUT[index.astype(np.intp).T]  # pixel-major, as the image
+    u = ((np.arange(width) + 0.5 - view.intrinsic[0, 2]) / (width / 2)).astype(_F32)
+    v = ((np.arange(rows.start, rows.stop) + 0.5 - view.intrinsic[1, 2]) / (width / 2)).astype(_F32)
+    darkening = _F32(style.vignetting / (1.0 + (height / width) ** 2))
+    vignette = 1 - darkening * (u[None, :] * u[None, :] + v[:, None] * v[:, None])
+    # The tone table's index of each value: exposed radiance times _LUT_STEPS (values past
+    # the end of the table are white).
+    radiance *= (gain * _LUT_STEPS).astype(_F32)[:, None] * vignette.reshape(-1)
+    level = np.take(_TONE_LUT, radiance.astype(np.intp).T, mode="clip")  # pixel-major, as the image
     if style.noise_std > 0:
         noise = np.frombuffer(rng.bytes(level.size), np.uint8).reshape(level.shape)
-        level += (_NORMAL_QUANTILES * _F32(255.0 * style.noise_std))[noise]
-    return np.clip(level, 0.0, 255.0).astype(np.uint8).reshape(height, width, 3)
+        level += np.take(_NORMAL_QUANTILES * _F32(255.0 * style.noise_std), noise)
+    return np.clip(level, 0.0, 255.0, out=level).astype(np.uint8).reshape(-1, width, 3)
 
 
 def render_camera(parts: Parts, appearances, ground_shader, intrinsic, cam_to_world, width: int,
@@ -752,20 +888,27 @@ def render_camera(parts: Parts, appearances, ground_shader, intrinsic, cam_to_wo
     sun = np.asarray(sun_direction, np.float64)
     sun = sun / np.linalg.norm(sun)
 
-    rays = _pixel_rays(view)
-    ray_len = np.sqrt(rays[0] * rays[0] + rays[1] * rays[1] + rays[2] * rays[2])
+    ray_len = _ray_lengths(view)
     depth = _ground_depth(view, ray_len)
     part_buf = np.full(width * height, -1, np.int32)
     object_pixels = np.zeros(n_objects, np.int64)
     if len(parts):
         object_pixels = _cast_parts(parts, view, depth, part_buf, n_objects)
 
-    owner_map = np.where(part_buf >= 0, parts.owner[np.maximum(part_buf, 0)] if len(parts) else -1, -1)
+    part_buf = part_buf.astype(np.intp)  # numpy gathers by intp indices several times faster
+    owner_map = np.take(np.append(parts.owner, np.int32(-1)), part_buf)  # part -1: owner -1
     counted = (owner_map >= 0) & (owner_map < n_objects)
     visible_pixels = np.bincount(owner_map[counted], minlength=n_objects)[:n_objects].astype(np.int64)
 
-    radiance = _shade(parts, appearances, ground_shader, view, sun, n_objects, depth, part_buf, rays, ray_len)
-    image = _apply_style(radiance, style, view, rng)
-    return CameraRender(image=image, owner_map=owner_map.reshape(height, width).astype(np.int32),
+    scene = _Scene(_part_table(parts, view), _looks(appearances, parts, n_objects), ground_shader, view, sun,
+                   _shadow_casters(parts, view, sun))
+    image = np.empty((height, width, 3), np.uint8)
+    band = max(1, _BAND_PIXELS // width)
+    for top in range(0, height, band):
+        rows = slice(top, min(top + band, height))
+        pixels = slice(rows.start * width, rows.stop * width)
+        radiance = _shade(scene, depth[pixels], part_buf[pixels], ray_len[pixels], rows)
+        image[rows] = _apply_style(radiance, style, view, rows, rng)
+    return CameraRender(image=image, owner_map=owner_map.reshape(height, width),
                         depth=depth.reshape(height, width), object_pixels=object_pixels,
                         visible_pixels=visible_pixels)

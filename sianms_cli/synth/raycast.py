@@ -1,8 +1,9 @@
 """Ray casting against yaw-rotated cuboid parts and the ground plane z = 0.
 
-The core is a vectorised slab test over (ray, part) pairs; `intersect_parts` builds the
-pairs with a cone-versus-bounding-sphere cull per bundle of consecutive rays, and
-`reduce_nearest` keeps the nearest hit per ray, so camera and LiDAR share one intersector.
+The core is the vectorised slab test `slab_interval`, shared with the camera (which sets
+up its rays per part itself); `intersect_parts` builds (ray, part) pairs with a
+cone-versus-bounding-sphere cull per bundle of consecutive rays, and `reduce_nearest` keeps
+the nearest hit per ray.
 """
 
 from __future__ import annotations

@@ -1,9 +1,10 @@
 import numpy as np
 import pytest
 
-from sianms_cli.synth import shapes
+from sianms_cli.synth import camera, shapes
 from sianms_cli.synth.appearance import CameraStyle, camera_style, sample_appearance
 from sianms_cli.synth.camera import render_camera
+from sianms_cli.synth.raycast import intersect_ground, intersect_parts
 from sianms_cli.synth.shapes import Parts, concat_parts
 
 W, H, F, CX, CY = 160, 120, 100.0, 80.0, 60.0
@@ -101,3 +102,72 @@ def test_empty_scene_renders_ground_and_sky():
     out = render(concat_parts([]), n_objects=0)
     assert out.object_pixels.shape == (0,) and np.all(out.owner_map == -1)
     assert np.isfinite(out.depth[-1]).all() and np.isinf(out.depth[0]).all()
+
+
+def test_large_part_cast_as_a_block_covers_exactly_its_projected_pixels():
+    # 100 x 100 pixels: more than camera._BLOCK_AREA, so cast as a 2-D block, not as pairs.
+    out = render(cube(center=(3.0, 0.0, 1.5)))
+    expected = predicted_front_face_mask(2.0, -1.0, 1.0, 0.5, 2.5)
+    assert expected.sum() > camera._BLOCK_AREA
+    np.testing.assert_array_equal(out.owner_map == 0, expected)
+    assert out.object_pixels[0] == out.visible_pixels[0] == expected.sum()
+
+
+def street_scene(seed=0, n=40):
+    """Objects and scenery of random sizes and yaws around the camera, none within 1 m of it."""
+    rng = np.random.default_rng(seed)
+    center = np.column_stack([rng.uniform(2, 40, n), rng.uniform(-15, 15, n), rng.uniform(0.2, 3, n)])
+    owner = np.where(rng.uniform(size=n) < 0.7, rng.integers(0, 5, n), -1)
+    return Parts(center, rng.uniform(0.1, 2.5, (n, 3)), rng.uniform(-np.pi, np.pi, n), owner,
+                 rng.integers(0, len(shapes.MATERIALS), n))
+
+
+def test_nearest_surfaces_match_the_generic_intersector():
+    parts = street_scene()
+    out = render(parts, n_objects=5)
+    u, v = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
+    rays_cam = np.linalg.inv(K) @ np.stack([u.ravel(), v.ravel(), np.ones(W * H)])
+    dirs = (CAM_TO_WORLD[:3, :3] @ rays_cam).T
+    origin = CAM_TO_WORLD[:3, 3]
+    t_ground = intersect_ground(origin, dirs, t_max=camera.GROUND_RANGE / np.linalg.norm(dirs, axis=1))
+    t, part, _, _ = intersect_parts(origin, dirs, parts, t_max=t_ground)
+    on_part = t < t_ground
+    owner = np.where(on_part, parts.owner[np.maximum(part, 0)], -1)
+    depth = np.where(on_part, t, t_ground)
+    assert on_part.mean() > 0.2 and (owner >= 0).mean() > 0.05
+    np.testing.assert_array_equal(out.owner_map.ravel(), owner)
+    np.testing.assert_allclose(out.depth.ravel(), depth, rtol=1e-5)
+
+
+def test_band_tile_and_chunk_sizes_do_not_change_the_render(monkeypatch):
+    parts = street_scene(seed=1)
+    style = camera_style(np.random.default_rng(2))
+    reference = render(parts, n_objects=5, style=style)
+    monkeypatch.setattr(camera, "_BAND_PIXELS", 1000)
+    monkeypatch.setattr(camera, "_CHUNK", 777)
+    monkeypatch.setattr(camera, "_BLOCK_AREA", 50)
+    small = render(parts, n_objects=5, style=style)
+    for name in ("image", "owner_map", "depth", "object_pixels", "visible_pixels"):
+        np.testing.assert_array_equal(getattr(small, name), getattr(reference, name), err_msg=name)
+
+
+def test_objects_cast_shadows_on_the_ground_and_scenery_does_not():
+    def render_overhead_sun(owner):
+        return render_camera(cube(owner=owner), [], flat_ground, K, CAM_TO_WORLD, W, H, CameraStyle(),
+                             np.array([0.0, 0.0, 1.0]), 1, np.random.default_rng(0)).image.astype(float)
+    # With the sun overhead the cube's shadow is the ground x in [9, 11], y in [-1, 1]:
+    # rows 74-76 below the cube; the same rows far to the side are lit.
+    shadow, lit = np.s_[74:77, 72:88], np.s_[74:77, 10:30]
+    image = render_overhead_sun(owner=0)
+    assert image[shadow].mean() < image[lit].mean() - 20
+    image = render_overhead_sun(owner=-1)
+    assert abs(image[shadow].mean() - image[lit].mean()) < 3
+
+
+def test_sensor_noise_has_the_style_standard_deviation():
+    clean = render(cube(), style=CameraStyle()).image.astype(float)
+    noisy = render(cube(), style=CameraStyle(noise_std=0.01), seed=5).image.astype(float)
+    mid = (clean > 20) & (clean < 235)
+    noise = (noisy - clean)[mid]
+    assert abs(noise.mean()) < 0.1
+    assert noise.std() == pytest.approx(2.55, rel=0.1)

@@ -22,7 +22,7 @@ def test_ray_hits_front_face_at_known_t_and_normal():
 def test_rotated_box_normal_and_local_hit():
     # Yaw pi/2 turns the part's y half extent (1 m) along global x.
     parts = _parts([[5.0, 0.0, 1.0]], [[2.0, 1.0, 1.0]], [np.pi / 2])
-    t, part, normal, local = intersect_parts([0.0, 0.3, 1.2], [[1.0, 0.0, 0.0]], parts)
+    t, _, normal, local = intersect_parts([0.0, 0.3, 1.2], [[1.0, 0.0, 0.0]], parts)
     assert t[0] == pytest.approx(4.0)
     np.testing.assert_allclose(normal[0], [-1.0, 0.0, 0.0], atol=1e-12)
     np.testing.assert_allclose(local[0], [0.3, 1.0, 0.2], atol=1e-12)
@@ -30,7 +30,7 @@ def test_rotated_box_normal_and_local_hit():
 
 def test_ray_missing_gives_inf_and_minus_one():
     parts = _parts([[5.0, 0.0, 1.0]], [[1.0, 1.0, 1.0]], [0.0])
-    t, part, normal, local = intersect_parts([0.0, 0.0, 1.0], [[0.0, 1.0, 0.0], [1.0, 0.0, 0.5]], parts)
+    t, part, normal, _ = intersect_parts([0.0, 0.0, 1.0], [[0.0, 1.0, 0.0], [1.0, 0.0, 0.5]], parts)
     assert np.all(np.isinf(t))
     np.testing.assert_array_equal(part, [-1, -1])
     np.testing.assert_array_equal(normal, 0.0)
@@ -72,10 +72,10 @@ def test_culled_intersection_matches_brute_force():
     origin = np.array([0.5, -0.3, 0.2])
     dirs = rng.normal(size=(r, 3))
     dirs = dirs[np.argsort(np.arctan2(dirs[:, 1], dirs[:, 0]))]
-    t, part, normal, _ = intersect_parts(origin, dirs, parts, t_max=30.0, bundle=64)
+    t, part, _, _ = intersect_parts(origin, dirs, parts, t_max=30.0, bundle=64)
     ray = np.repeat(np.arange(r), m)
     pid = np.tile(np.arange(m), r)
-    tb, nb, _ = intersect_boxes(np.broadcast_to(origin, (r * m, 3)), dirs[ray], parts.center[pid],
+    tb, _, _ = intersect_boxes(np.broadcast_to(origin, (r * m, 3)), dirs[ray], parts.center[pid],
                                 parts.half_size[pid], parts.yaw[pid], 30.0)
     tb = tb.reshape(r, m)
     np.testing.assert_array_equal(t, tb.min(axis=1))

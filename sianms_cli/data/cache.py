@@ -1,0 +1,193 @@
+"""Writing and reading the prepared cache: atomic, streaming shard files and the manifest.
+
+Layout of a cache folder::
+
+    manifest.json                      resolved config, counts and checksums of finished shards
+    detections/<shard>.parquet         one zstd Parquet file per shard (= scene)
+    frustums/<shard>.parquet
+    pairs/<shard>.parquet
+    _shards/<shard>.json               completion record of a shard (written last)
+
+A shard's files are written under hidden temporary names (``.<shard>.parquet.tmp``) one row
+group per sample, renamed when complete, and the shard counts as finished only once its
+completion record exists. A rerun skips finished shards and rewrites the others; readers
+(which skip hidden files and match ``*.parquet``) never see a half-written file.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from sianms_cli.data.schemas import DATASETS, SCHEMA_VERSION
+from sianms_cli.errors import DataFormatError
+
+MANIFEST = "manifest.json"
+SHARDS = "_shards"
+
+
+def sha256_of(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def write_json_atomic(path: Path, data: Any) -> None:
+    """Write JSON (sorted keys, indented) to a temporary name and rename it into place."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+    os.replace(tmp, path)
+
+
+class ShardWriter:
+    """Streams one shard of the three datasets to temporary files; :meth:`commit` finishes it.
+
+    Use as a context manager; leaving the block without :meth:`commit` (an error, a kill)
+    leaves only temporary files, which :func:`clear_shard` removes on the next run.
+    """
+
+    def __init__(self, root: Path, shard: str, schemas: dict[str, pa.Schema]) -> None:
+        self.root, self.shard, self.schemas = Path(root), shard, schemas
+        self.rows = {name: 0 for name in DATASETS}
+        self._writers: dict[str, pq.ParquetWriter] = {}
+        for name in DATASETS:
+            folder = self.root / name
+            folder.mkdir(parents=True, exist_ok=True)
+            self._writers[name] = pq.ParquetWriter(
+                self._tmp(name), schemas[name], compression="zstd", write_statistics=True)
+
+    def _final(self, name: str) -> Path:
+        return self.root / name / f"{self.shard}.parquet"
+
+    def _tmp(self, name: str) -> Path:
+        return self.root / name / f".{self.shard}.parquet.tmp"
+
+    def write(self, name: str, table: pa.Table) -> None:
+        """Append ``table`` (one sample's rows) as a row group of dataset ``name``."""
+        if table.num_rows:
+            self._writers[name].write_table(table.cast(self.schemas[name]))
+            self.rows[name] += table.num_rows
+
+    def close(self) -> None:
+        for writer in self._writers.values():
+            writer.close()
+        self._writers = {}
+
+    def commit(self, extra: dict[str, Any]) -> dict[str, Any]:
+        """Close, rename the files into place, then write the shard's completion record."""
+        self.close()
+        files = {}
+        for name in DATASETS:
+            os.replace(self._tmp(name), self._final(name))
+            files[f"{name}/{self.shard}.parquet"] = {
+                "rows": self.rows[name], "sha256": sha256_of(self._final(name))}
+        record = {"shard": self.shard, "files": files, **extra}
+        (self.root / SHARDS).mkdir(exist_ok=True)
+        write_json_atomic(self.root / SHARDS / f"{self.shard}.json", record)
+        return record
+
+    def __enter__(self) -> ShardWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def shard_done(root: Path, shard: str) -> bool:
+    """A shard is finished when its completion record and all its files exist."""
+    root = Path(root)
+    return (root / SHARDS / f"{shard}.json").is_file() and all(
+        (root / name / f"{shard}.parquet").is_file() for name in DATASETS)
+
+
+def clear_shard(root: Path, shard: str) -> None:
+    """Remove every file of an unfinished shard (temporary or not)."""
+    root = Path(root)
+    for name in DATASETS:
+        for path in ((root / name / f"{shard}.parquet"), (root / name / f".{shard}.parquet.tmp")):
+            path.unlink(missing_ok=True)
+    (root / SHARDS / f"{shard}.json").unlink(missing_ok=True)
+
+
+def shard_records(root: Path) -> dict[str, dict[str, Any]]:
+    """The completion records of the finished shards, by shard name."""
+    folder = Path(root) / SHARDS
+    records = {}
+    if folder.is_dir():
+        for path in sorted(folder.glob("*.json")):
+            shard = path.stem
+            if shard_done(root, shard):
+                records[shard] = json.loads(path.read_text(encoding="utf-8"))
+    return records
+
+
+def read_manifest(root: Path) -> dict[str, Any] | None:
+    path = Path(root) / MANIFEST
+    if not path.is_file():
+        return None
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as error:
+        raise DataFormatError(path, f"not valid JSON ({error.msg})") from None
+
+
+def write_manifest(root: Path, config: dict[str, Any], expected_shards: list[str]) -> dict[str, Any]:
+    """(Re)write manifest.json from the config and the finished shards' records."""
+    records = shard_records(root)
+    totals = {name: 0 for name in DATASETS}
+    samples = 0
+    files = {}
+    for record in records.values():
+        samples += record.get("samples", 0)
+        for path, info in record["files"].items():
+            files[path] = info
+            totals[path.split("/")[0]] += info["rows"]
+    missing = [shard for shard in expected_shards if shard not in records]
+    manifest = {
+        "schema_version": SCHEMA_VERSION,
+        "config": config,
+        "shards_expected": len(expected_shards),
+        "shards_finished": len([s for s in expected_shards if s in records]),
+        "complete": not missing,
+        "missing_shards": missing,
+        "counts": {"samples": samples, **totals},
+        "files": dict(sorted(files.items())),
+    }
+    write_json_atomic(Path(root) / MANIFEST, manifest)
+    return manifest
+
+
+def read_dataset(root: Path, name: str, columns: list[str] | None = None) -> pa.Table:
+    """All finished shard files of dataset ``name`` as one table (shard-name order)."""
+    folder = Path(root) / name
+    paths = sorted(folder.glob("*.parquet"))
+    if not paths:
+        raise DataFormatError(folder, f"no finished {name} shard files (*.parquet)")
+    return pa.concat_tables([pq.read_table(path, columns=columns) for path in paths])
+
+
+def roi_feature_shape(path: Path) -> tuple[int, ...]:
+    """(C, PH, PW) of the ROI features in a detections file, from its metadata."""
+    metadata = pq.read_schema(path).metadata or {}
+    shape = metadata.get(b"sianms.roi_feature_shape")
+    if shape is None:
+        raise DataFormatError(path, "no sianms.roi_feature_shape in the schema metadata")
+    return tuple(int(v) for v in shape.decode().split(","))
+
+
+def decode_roi_features(column: pa.ChunkedArray | pa.Array | list[bytes], shape: tuple[int, ...]) -> np.ndarray:
+    """(N, C, PH, PW) float16 features from a ``roi_feature`` column."""
+    if isinstance(column, (pa.ChunkedArray, pa.Array)):
+        column = column.to_pylist()
+    if len(column) == 0:
+        return np.zeros((0, *shape), dtype=np.float16)
+    return np.frombuffer(b"".join(column), dtype="<f2").reshape(len(column), *shape)

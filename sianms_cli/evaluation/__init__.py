@@ -1,0 +1,85 @@
+"""nuScenes detection metrics on box tables: results files, filters, regions, matching, AP,
+TP errors and NDS, with the same numbers as nuscenes-devkit 1.2.0 (see docs/metrics.md).
+
+Knows nothing of models. Boxes travel as one structured array per set (:data:`BOX_DTYPE`).
+"""
+
+from sianms_cli.evaluation.algo import (
+    MetricData,
+    accumulate,
+    accumulate_thresholds,
+    attr_acc,
+    calc_ap,
+    calc_tp,
+    center_distance,
+    cummean,
+    scale_iou,
+    velocity_l2,
+    yaw_diff,
+)
+from sianms_cli.evaluation.boxes import (
+    ATTRIBUTE_NAMES,
+    BOX_DTYPE,
+    DETECTION_NAMES,
+    TP_METRICS,
+    empty_boxes,
+    make_boxes,
+)
+from sianms_cli.evaluation.config import PRESETS, DetectionConfig, load_config
+from sianms_cli.evaluation.dataset import EvalSplit, eval_split, ground_truth
+from sianms_cli.evaluation.evaluate import (
+    align_results,
+    evaluate,
+    format_report,
+    report_json,
+    run_metrics,
+    write_report,
+)
+from sianms_cli.evaluation.metrics import evaluate_boxes
+from sianms_cli.evaluation.results import (
+    Results,
+    ResultsFormatError,
+    read_results,
+    results_from_boxes,
+    validate_results,
+    write_results,
+)
+
+__all__ = [
+    "ATTRIBUTE_NAMES",
+    "BOX_DTYPE",
+    "DETECTION_NAMES",
+    "PRESETS",
+    "TP_METRICS",
+    "DetectionConfig",
+    "EvalSplit",
+    "MetricData",
+    "Results",
+    "ResultsFormatError",
+    "accumulate",
+    "accumulate_thresholds",
+    "align_results",
+    "attr_acc",
+    "calc_ap",
+    "calc_tp",
+    "center_distance",
+    "cummean",
+    "empty_boxes",
+    "eval_split",
+    "evaluate",
+    "evaluate_boxes",
+    "format_report",
+    "ground_truth",
+    "load_config",
+    "make_boxes",
+    "read_results",
+    "report_json",
+    "results_from_boxes",
+    "run_metrics",
+    "scale_iou",
+    "validate_results",
+    "velocity_l2",
+    "write_report",
+    "write_results",
+    "yaw_diff",
+]

@@ -1,0 +1,124 @@
+"""Evaluation regions: all boxes, the camera-overlap region, its complement, one camera pair.
+
+A region is a per-box predicate applied to ground truth and predictions alike before matching.
+Overlap follows THE rule of :mod:`sianms_cli.geometry.rig`: the box centre, in front of the
+camera, projects inside the images of both cameras of a contiguous pair. For every box the
+rig is that of its sample (the calibrated_sensor records of the sample's key-frame cameras)
+and the centre is taken into the ego frame with the ego pose of the sample's LIDAR_TOP key
+frame (the pose the devkit measures ranges from).
+
+Region names:
+
+- ``all``: every box;
+- ``overlap``: boxes seen by both cameras of at least one contiguous pair;
+- ``non-overlap``: every other box;
+- ``overlap:CAM_A|CAM_B``: boxes seen by both cameras of that pair (either order);
+- ``overlap:*``: shorthand for one region per contiguous pair of the dataset's rigs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from sianms_cli.errors import SianmsError
+from sianms_cli.geometry.quaternion import quat_to_matrix
+from sianms_cli.geometry.rig import CameraRig
+
+ALL = "all"
+OVERLAP = "overlap"
+NON_OVERLAP = "non-overlap"
+PAIR_PREFIX = "overlap:"
+EVERY_PAIR = "overlap:*"
+
+
+def centers_in_ego(boxes: np.ndarray, ego_rotation: np.ndarray, ego_translation: np.ndarray) -> np.ndarray:
+    """(N, 3) box centres in the ego frame of their sample: R_ego^T (p - t_ego)."""
+    rotations = quat_to_matrix(ego_rotation)
+    sample = boxes["sample"]
+    offset = boxes["translation"] - ego_translation[sample]
+    return np.einsum("nji,nj->ni", rotations[sample], offset)
+
+
+@dataclass(frozen=True, eq=False)
+class OverlapBits:
+    """Which contiguous camera pairs see each box: bit k of ``bits`` is pair ``pair_names[k]``.
+
+    ``pair_names`` is the union of the pair names of the rigs involved, in first-seen order
+    (``CAM_FRONT|CAM_FRONT_RIGHT`` first on a nuScenes rig).
+    """
+
+    pair_names: tuple[str, ...]
+    bits: np.ndarray
+
+
+def overlap_bits(boxes: np.ndarray, centers_ego: np.ndarray, rigs: Sequence[CameraRig],
+                 rig_of_sample: np.ndarray) -> OverlapBits:
+    """The overlap pairs of each box, from its sample's rig (-1: no camera, no pair)."""
+    names: list[str] = []
+    for rig in rigs:
+        names.extend(name for name in rig.pair_names if name not in names)
+    if len(names) > 64:
+        raise SianmsError(f"{len(names)} distinct camera pairs; at most 64 are supported")
+    bits = np.zeros(len(boxes), dtype=np.uint64)
+    box_rig = rig_of_sample[boxes["sample"]] if len(boxes) else np.zeros(0, np.int64)
+    for r, rig in enumerate(rigs):
+        rows = np.flatnonzero(box_rig == r)
+        if len(rows) == 0 or not rig.pair_names:
+            continue
+        seen = rig.overlap_pairs(centers_ego[rows])
+        weights = np.array([1 << names.index(name) for name in rig.pair_names], dtype=np.uint64)
+        bits[rows] = np.bitwise_or.reduce(np.where(seen, weights, np.uint64(0)), axis=1)
+    return OverlapBits(tuple(names), bits)
+
+
+def _canonical_pair(name: str, pair_names: Sequence[str]) -> str | None:
+    cameras = name[len(PAIR_PREFIX):].split("|")
+    if len(cameras) != 2:
+        return None
+    for known in pair_names:
+        if set(known.split("|")) == set(cameras) and cameras[0] != cameras[1]:
+            return known
+    return None
+
+
+def resolve_regions(requested: Iterable[str], pair_names: Sequence[str]) -> list[str]:
+    """Validated, canonical region names: ``overlap:*`` expanded, pairs spelt as in the rigs,
+    duplicates dropped, order kept. SianmsError lists the valid names for an unknown one."""
+    resolved: list[str] = []
+    for raw in requested:
+        name = raw.strip()
+        if name in (ALL, OVERLAP, NON_OVERLAP):
+            names = [name]
+        elif name == EVERY_PAIR:
+            names = [PAIR_PREFIX + pair for pair in pair_names]
+        elif name.startswith(PAIR_PREFIX) and _canonical_pair(name, pair_names):
+            names = [PAIR_PREFIX + _canonical_pair(name, pair_names)]
+        else:
+            pairs = ", ".join(PAIR_PREFIX + pair for pair in pair_names) or "none (no camera pairs)"
+            raise SianmsError(f"unknown region '{name}'; regions: {ALL}, {OVERLAP}, {NON_OVERLAP}, "
+                              f"{EVERY_PAIR}, or one pair: {pairs}")
+        resolved.extend(n for n in names if n not in resolved)
+    if not resolved:
+        raise SianmsError("no region given")
+    return resolved
+
+
+def needs_overlap(regions: Iterable[str]) -> bool:
+    """Whether any of the (raw) region names needs the camera geometry."""
+    return any(region.strip() != ALL for region in regions)
+
+
+def region_mask(region: str, overlap: OverlapBits | None, count: int) -> np.ndarray:
+    """(count,) bool: the boxes in a canonical region (see :func:`resolve_regions`)."""
+    if region == ALL:
+        return np.ones(count, dtype=bool)
+    assert overlap is not None and len(overlap.bits) == count, region
+    if region == OVERLAP:
+        return overlap.bits != 0
+    if region == NON_OVERLAP:
+        return overlap.bits == 0
+    bit = np.uint64(1 << overlap.pair_names.index(region[len(PAIR_PREFIX):]))
+    return (overlap.bits & bit) != 0

@@ -1,0 +1,626 @@
+"""Detection results files (the nuScenes submission format): read, validate, write.
+
+The format (nuScenes detection README; reference §5.8)::
+
+    {"meta": {"use_camera": bool, "use_lidar": bool, "use_radar": bool, "use_map": bool,
+              "use_external": bool},
+     "results": {sample_token: [box, ...], ...}}
+    box = {"sample_token": str, "translation": [x, y, z], "size": [w, l, h],
+           "rotation": [w, x, y, z], "velocity": [vx, vy], "detection_name": str,
+           "detection_score": float, "attribute_name": str}
+
+everything in the global frame, metres, m/s. Reading is stricter than the devkit, so that a
+file that reads here evaluates there, and a mistake is named precisely. One
+:class:`ResultsFormatError` names the file, the sample token, the box index (0-based, within
+the sample's list) and the field:
+
+- the top level is an object with ``results`` (an object of lists) and ``meta`` (an object;
+  the five ``use_*`` flags, where present, are booleans); a sample token appears once;
+- at most ``max_boxes_per_sample`` boxes per sample (500 in the devkit configs);
+- every box has the 8 keys above (other keys, such as the devkit's optional ``num_pts`` and
+  ``ego_translation``, are ignored); ``sample_token`` equals the sample's key;
+- translation, size and rotation are finite numbers (JSON numbers, not strings or booleans);
+  every size is > 0; the rotation is a unit quaternion within ``QUATERNION_TOLERANCE``;
+- velocity holds two numbers, each finite or NaN (NaN: no estimate; the devkit skips it in
+  AVE); the score is a finite number in [0, 1];
+- ``detection_name`` is one of the 10 detection classes, ``attribute_name`` one of the 8
+  attributes or ``""``.
+
+Whether every sample of a split is present is checked against the split by the evaluation
+(:func:`sianms_cli.evaluation.evaluate.align_results`).
+
+Files are read in chunks and decoded one sample at a time, so memory stays near the size of
+the boxes as arrays (about 120 bytes per box), not of the decoded JSON.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import tempfile
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from itertools import chain, repeat
+from operator import itemgetter
+from pathlib import Path
+from typing import Any, Callable, Iterator, Sequence, TextIO
+
+import numpy as np
+
+try:
+    import orjson
+except ImportError:  # optional: the json module decodes everything, more slowly
+    orjson = None
+
+from sianms_cli.errors import DataFormatError, OutputExistsError
+from sianms_cli.evaluation.boxes import (
+    ATTRIBUTE,
+    ATTRIBUTE_NAMES,
+    BOX_DTYPE,
+    DETECTION_NAMES,
+    LABEL,
+    NO_ATTRIBUTE,
+    empty_boxes,
+)
+
+QUATERNION_TOLERANCE = 1e-2
+"""A rotation is accepted when | ||q|| - 1 | <= this (it is normalised before use)."""
+
+MAX_BOXES_PER_SAMPLE = 500
+META_FLAGS = ("use_camera", "use_lidar", "use_radar", "use_map", "use_external")
+BOX_KEYS = ("sample_token", "translation", "size", "rotation", "velocity",
+            "detection_name", "detection_score", "attribute_name")
+_VECTORS = {"translation": 3, "size": 3, "rotation": 4, "velocity": 2}
+_ATTRIBUTE_CODES = {"": NO_ATTRIBUTE, **ATTRIBUTE}
+_CHUNK_CHARS = 1 << 23  # characters read at a time
+_BATCH_BOXES = 1 << 16  # boxes converted to arrays at a time
+
+
+class ResultsFormatError(DataFormatError):
+    """A results file (or in-memory results) breaks the format; ``box_index`` is the 0-based
+    position of the offending box in its sample's list, or None for a sample-level problem."""
+
+    def __init__(self, path: str | Path, message: str, *, token: str | None = None,
+                 field: str | None = None, box_index: int | None = None) -> None:
+        self.box_index = box_index
+        if box_index is not None:
+            message = f"box {box_index}: {message}"
+        super().__init__(path, message, token=token, field=field)
+
+
+@dataclass(frozen=True, eq=False)
+class Results:
+    """Detection results in memory.
+
+    Attributes:
+        sample_tokens: the samples, in file (results-object) order.
+        boxes: box table (:data:`~sianms_cli.evaluation.boxes.BOX_DTYPE`); ``sample`` indexes
+            ``sample_tokens``; rows grouped by sample in that order, list order within a sample
+            (the devkit's flattened order).
+        meta: the ``meta`` object.
+        path: where it was read from (for messages); ``"<results>"`` when built in memory.
+    """
+
+    sample_tokens: tuple[str, ...]
+    boxes: np.ndarray
+    meta: dict = field(default_factory=lambda: {flag: False for flag in META_FLAGS})
+    path: str = "<results>"
+
+    def sample_bounds(self) -> np.ndarray:
+        """(S + 1,) int64: the boxes of sample i are rows bounds[i]:bounds[i + 1]."""
+        counts = np.bincount(self.boxes["sample"], minlength=len(self.sample_tokens))
+        return np.r_[0, np.cumsum(counts)].astype(np.int64)
+
+
+# --------------------------------------------------------------------------- validation
+
+
+def validate_results(results: Results, max_boxes_per_sample: int = MAX_BOXES_PER_SAMPLE) -> None:
+    """Check box values and counts (the module docstring's rules) on in-memory results.
+
+    Raises ResultsFormatError for the first offending box in file order, naming its sample
+    token, box index and field.
+    """
+    boxes, path = results.boxes, results.path
+    if boxes.dtype != BOX_DTYPE:
+        raise TypeError(f"boxes must have BOX_DTYPE, got {boxes.dtype}")
+    samples = boxes["sample"]
+    if len(boxes) and (samples.min() < 0 or samples.max() >= len(results.sample_tokens)
+                       or (np.diff(samples) < 0).any()):
+        raise ValueError("box 'sample' indices must index sample_tokens and be grouped in its order")
+    if len(set(results.sample_tokens)) != len(results.sample_tokens):
+        seen: set[str] = set()
+        duplicate = next(t for t in results.sample_tokens if t in seen or seen.add(t))
+        raise ResultsFormatError(path, "sample listed twice", token=duplicate, field="results")
+    bounds = results.sample_bounds()
+    counts = np.diff(bounds)
+    if (counts > max_boxes_per_sample).any():
+        sample = int(np.flatnonzero(counts > max_boxes_per_sample)[0])
+        raise ResultsFormatError(path, f"{counts[sample]} boxes; at most {max_boxes_per_sample} per sample",
+                                 token=results.sample_tokens[sample], field="results")
+    bad = _first_bad_row(boxes)
+    if bad is not None:
+        row, name, message = bad
+        sample = int(samples[row])
+        raise ResultsFormatError(path, message, token=results.sample_tokens[sample], field=name,
+                                 box_index=row - int(bounds[sample]))
+
+
+def _first_bad_row(boxes: np.ndarray) -> tuple[int, str, str] | None:
+    """(row, field, message) of the first box breaking a value rule, first failing field."""
+    checks = _value_checks(boxes)
+    bad = np.zeros(len(boxes), dtype=bool)
+    for _, mask, _ in checks:
+        bad |= mask
+    if not bad.any():
+        return None
+    row = int(np.flatnonzero(bad)[0])
+    name, _, describe = next(check for check in checks if check[1][row])
+    return row, name, describe(row)
+
+
+def _value_checks(boxes: np.ndarray) -> list[tuple[str, np.ndarray, Callable[[int], str]]]:
+    """(field, (N,) bool offending, message for a row) in field order."""
+    translation, size, rotation = boxes["translation"], boxes["size"], boxes["rotation"]
+    velocity, score = boxes["velocity"], boxes["score"]
+    with np.errstate(invalid="ignore", over="ignore"):
+        norm = np.sqrt((rotation ** 2).sum(axis=1))
+        return [
+            ("translation", ~np.isfinite(translation).all(axis=1),
+             lambda r: f"must be 3 finite numbers, got {translation[r].tolist()}"),
+            ("size", ~(np.isfinite(size) & (size > 0)).all(axis=1),
+             lambda r: f"must be 3 positive numbers (w, l, h), got {size[r].tolist()}"),
+            ("rotation", ~(np.isfinite(rotation).all(axis=1) & (np.abs(norm - 1) <= QUATERNION_TOLERANCE)),
+             lambda r: f"must be a unit quaternion (w, x, y, z) within {QUATERNION_TOLERANCE}, "
+                       f"got {rotation[r].tolist()} (norm {norm[r]:.6g})"),
+            ("velocity", np.isinf(velocity).any(axis=1),
+             lambda r: f"must be 2 finite numbers or NaN, got {velocity[r].tolist()}"),
+            ("detection_name", (boxes["label"] < 0) | (boxes["label"] >= len(DETECTION_NAMES)),
+             lambda r: f"unknown class index {boxes['label'][r]}"),
+            ("detection_score", ~(np.isfinite(score) & (score >= 0) & (score <= 1)),
+             lambda r: f"must be a number in [0, 1], got {score[r]!r}"),
+            ("attribute_name", (boxes["attribute"] < NO_ATTRIBUTE) | (boxes["attribute"] >= len(ATTRIBUTE_NAMES)),
+             lambda r: f"unknown attribute index {boxes['attribute'][r]}"),
+        ]
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def read_results(path: str | Path, *, max_boxes_per_sample: int = MAX_BOXES_PER_SAMPLE,
+                 progress: Callable[[int], None] | None = None) -> Results:
+    """Read and validate a results file.
+
+    Args:
+        path: the JSON file.
+        max_boxes_per_sample: the per-sample limit (the configuration's).
+        progress: called with the number of characters read since the last call.
+
+    Raises:
+        ResultsFormatError (a DataFormatError): the first problem, naming the file, sample
+        token, box index and field; DataFormatError for a missing file or invalid JSON.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DataFormatError(path, "results file not found")
+    tokens: list[str] = []
+    seen: set[str] = set()
+    batch = _Batch(path)
+    parts: list[np.ndarray] = []
+    meta: Any = None
+    has_results = False
+    with _JsonStream(path, progress) as stream:
+        for key in stream.object_keys():
+            if key == "results":
+                has_results = True
+                for token, boxes in stream.object_items("results"):
+                    problem = _sample_problem(token, boxes, seen, max_boxes_per_sample)
+                    if problem is not None:
+                        parts.append(batch.flush())  # an earlier bad box is reported first
+                        raise ResultsFormatError(path, problem, token=token, field="results")
+                    seen.add(token)
+                    batch.add(len(tokens), token, boxes)
+                    tokens.append(token)
+                    if batch.size >= _BATCH_BOXES:
+                        parts.append(batch.flush())
+            elif key == "meta":
+                meta = stream.value()
+            else:
+                stream.value()  # other top-level fields are ignored, as by the devkit
+    parts.append(batch.flush())
+    if not has_results:
+        raise DataFormatError(path, "no 'results' object", field="results")
+    _check_meta(path, meta)
+    results = Results(tuple(tokens), np.concatenate(parts), meta, str(path))
+    validate_results(results, max_boxes_per_sample)
+    return results
+
+
+def _sample_problem(token: str, boxes: Any, seen: set[str], max_boxes: int) -> str | None:
+    if token in seen:
+        return "sample listed twice"
+    if not isinstance(boxes, list):
+        return f"must be a list of boxes, got {_kind(boxes)}"
+    if len(boxes) > max_boxes:
+        return f"{len(boxes)} boxes; at most {max_boxes} per sample"
+    return None
+
+
+def _check_meta(path: Path, meta: Any) -> None:
+    if meta is None:
+        raise DataFormatError(path, "no 'meta' object (the devkit requires it)", field="meta")
+    if not isinstance(meta, dict):
+        raise DataFormatError(path, f"must be an object, got {_kind(meta)}", field="meta")
+    for flag in META_FLAGS:
+        if flag in meta and not isinstance(meta[flag], bool):
+            raise DataFormatError(path, f"must be true or false, got {meta[flag]!r}", field=f"meta.{flag}")
+
+
+def _kind(value: Any) -> str:
+    return {dict: "an object", list: "a list", str: "a string", bool: "a boolean",
+            type(None): "null"}.get(type(value), "a number" if isinstance(value, (int, float)) else "?")
+
+
+class _Batch:
+    """Boxes of a few samples, decoded from JSON, converted to a box table in one go."""
+
+    _fields = itemgetter(*BOX_KEYS)
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._clear()
+
+    def _clear(self) -> None:
+        self.boxes: list = []
+        self.samples: list[tuple[int, str, int]] = []  # (sample index, token, box count)
+        self.size = 0
+
+    def add(self, index: int, token: str, boxes: list) -> None:
+        self.boxes.extend(boxes)
+        self.samples.append((index, token, len(boxes)))
+        self.size += len(boxes)
+
+    def flush(self) -> np.ndarray:
+        """The batch as a box table; ResultsFormatError for its first box (file order) that
+        breaks a type or value rule."""
+        table = self._convert()
+        if table is None:
+            self._diagnose()
+            raise AssertionError(f"{self.path}: fast check rejected boxes the exact check accepts")
+        bad = _first_bad_row(table)
+        if bad is not None:
+            row, name, message = bad
+            token, box_index = self._locate(row)
+            raise ResultsFormatError(self.path, message, token=token, field=name, box_index=box_index)
+        self._clear()
+        return table
+
+    def _locate(self, row: int) -> tuple[str, int]:
+        """(sample token, box index) of a row of the batch."""
+        for _, token, count in self.samples:
+            if row < count:
+                return token, row
+            row -= count
+        raise IndexError(row)
+
+    def _convert(self) -> np.ndarray | None:
+        """The box table, or None when some box breaks a type rule."""
+        boxes = self.boxes
+        table = empty_boxes(len(boxes))
+        if not boxes:
+            return table
+        if not _types_within(boxes, (dict,)):
+            return None
+        try:
+            columns = list(zip(*map(self._fields, boxes)))
+        except KeyError:
+            return None
+        tokens, translation, size, rotation, velocity, names, scores, attributes = columns
+        expected = list(chain.from_iterable(repeat(token, count) for _, token, count in self.samples))
+        if list(tokens) != expected:
+            return None
+        for name, values in (("translation", translation), ("size", size), ("rotation", rotation),
+                             ("velocity", velocity)):
+            array = _numbers(values, _VECTORS[name])
+            if array is None:
+                return None
+            table[name] = array
+        if not _types_within(scores, (float, int)):
+            return None
+        try:
+            table["score"] = np.fromiter(scores, dtype=np.float64, count=len(scores))
+        except OverflowError:
+            return None
+        if not (_types_within(names, (str,)) and _types_within(attributes, (str,))):
+            return None
+        try:
+            table["label"] = np.fromiter(map(LABEL.__getitem__, names), dtype=np.int8, count=len(names))
+            table["attribute"] = np.fromiter(map(_ATTRIBUTE_CODES.__getitem__, attributes), dtype=np.int8,
+                                             count=len(attributes))
+        except KeyError:
+            return None
+        table["sample"] = np.repeat([index for index, _, _ in self.samples],
+                                    [count for _, _, count in self.samples])
+        return table
+
+    def _diagnose(self) -> None:
+        """Raise ResultsFormatError for the first box that breaks a type or value rule."""
+        position = 0
+        for _, token, count in self.samples:
+            for box_index, box in enumerate(self.boxes[position:position + count]):
+                problem = _box_problem(box, token)
+                if problem is None:
+                    single = _Batch(self.path)
+                    single.add(0, token, [box])
+                    bad = _first_bad_row(single._convert())
+                    problem = None if bad is None else bad[1:]
+                if problem is not None:
+                    raise ResultsFormatError(self.path, problem[1], token=token, field=problem[0],
+                                             box_index=box_index)
+            position += count
+
+
+def _types_within(values: Sequence, allowed: tuple[type, ...]) -> bool:
+    return set(map(type, values)) <= set(allowed)
+
+
+def _numbers(values: Sequence, length: int) -> np.ndarray | None:
+    """(N, length) float64 from lists of JSON numbers, or None if any value is not one."""
+    if not _types_within(values, (list,)) or not set(map(len, values)) <= {length}:
+        return None
+    flat = list(chain.from_iterable(values))
+    if not _types_within(flat, (float, int)):
+        return None
+    try:
+        return np.fromiter(flat, dtype=np.float64, count=len(flat)).reshape(len(values), length)
+    except OverflowError:
+        return None
+
+
+def _box_problem(box: Any, token: str) -> tuple[str, str] | None:
+    """(field, message) of the first type rule ``box`` breaks, or None."""
+    if not isinstance(box, dict):
+        return "results", f"must be an object, got {_kind(box)}"
+    for key in BOX_KEYS:
+        if key not in box:
+            return key, "missing"
+    if box["sample_token"] != token:
+        return "sample_token", f"is {box['sample_token']!r}, not the sample it is listed under"
+    for name, length in _VECTORS.items():
+        value = box[name]
+        if (not isinstance(value, list) or len(value) != length
+                or not all(_is_number(v) for v in value) or not _fits_float(value)):
+            return name, f"must be a list of {length} numbers, got {value!r}"
+    score = box["detection_score"]
+    if not _is_number(score) or not _fits_float([score]):
+        return "detection_score", f"must be a number, got {score!r}"
+    name = box["detection_name"]
+    if not isinstance(name, str) or name not in LABEL:
+        return "detection_name", f"unknown class {name!r}; classes: {', '.join(DETECTION_NAMES)}"
+    attribute = box["attribute_name"]
+    if not isinstance(attribute, str) or attribute not in _ATTRIBUTE_CODES:
+        return "attribute_name", (f"unknown attribute {attribute!r}; attributes: "
+                                  f"{', '.join(ATTRIBUTE_NAMES)} or \"\"")
+    return None
+
+
+def _is_number(value: Any) -> bool:
+    return type(value) in (int, float)
+
+
+def _fits_float(values: list) -> bool:
+    try:
+        [float(v) for v in values]
+    except OverflowError:
+        return False
+    return True
+
+
+_WHITESPACE = re.compile(r"[ \t\n\r]*")
+_EMPTY_LIST = re.compile(r"\[[ \t\n\r]*\]")
+_LIST_END = re.compile(r"\}[ \t\n\r]*\]")
+
+
+class _JsonStream:
+    """Incremental reader of the top two levels of a JSON object, decoding each value whole.
+
+    The file is read in chunks; a value cut by the end of the buffer is decoded again once
+    more text is in. Consumed text is dropped, so memory holds about one chunk.
+    """
+
+    def __init__(self, path: Path, progress: Callable[[int], None] | None) -> None:
+        self.path = path
+        self.progress = progress
+        self.decoder = json.JSONDecoder()
+        self.buffer = ""
+        self.pos = 0
+        self.lines = 0  # newlines before the buffer
+        self.eof = False
+
+    def __enter__(self) -> _JsonStream:
+        try:
+            self.file = open(self.path, encoding="utf-8-sig")
+        except OSError as exc:
+            raise DataFormatError(self.path, f"cannot open: {exc.strerror}") from None
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.file.close()
+
+    def _fill(self, grow: bool = False) -> None:
+        """Drop the consumed text and read a chunk; ``grow``: at least double the pending text
+        (a value longer than a chunk is then re-decoded O(log n) times, not O(n / chunk))."""
+        dropped = self.buffer[:self.pos]
+        self.lines += dropped.count("\n")
+        size = max(_CHUNK_CHARS, len(self.buffer) - self.pos) if grow else _CHUNK_CHARS
+        try:
+            chunk = self.file.read(size)
+        except UnicodeDecodeError as exc:
+            raise DataFormatError(self.path, f"not valid UTF-8 ({exc.reason})") from None
+        self.buffer = self.buffer[self.pos:] + chunk
+        self.pos = 0
+        self.eof = not chunk
+        if self.progress is not None and chunk:
+            self.progress(len(chunk))
+
+    def _error(self, message: str, position: int | None = None) -> DataFormatError:
+        position = self.pos if position is None else position
+        line = self.lines + self.buffer.count("\n", 0, position) + 1
+        column = position - self.buffer.rfind("\n", 0, position)
+        return DataFormatError(self.path, f"invalid JSON at line {line}, column {column}: {message}")
+
+    def _skip_whitespace(self) -> str:
+        """The next non-blank character ('' at the end of the file)."""
+        while True:
+            self.pos = _WHITESPACE.match(self.buffer, self.pos).end()
+            if self.pos < len(self.buffer):
+                return self.buffer[self.pos]
+            if self.eof:
+                return ""
+            self._fill()
+
+    def _expect(self, characters: str, what: str) -> str:
+        found = self._skip_whitespace()
+        if not found or found not in characters:
+            raise self._error(f"expected {what}, found {found[:1] or 'the end of the file'!r}")
+        self.pos += 1
+        return found
+
+    def value(self) -> Any:
+        """Decode the next JSON value."""
+        if self._skip_whitespace() == "[" and orjson is not None:
+            fast = self._list_by_orjson()
+            if fast is not None:
+                return fast
+        while True:
+            try:
+                value, end = self.decoder.raw_decode(self.buffer, self.pos)
+            except json.JSONDecodeError as exc:
+                if self.eof:
+                    raise self._error(exc.msg, exc.pos) from None
+                self._fill(grow=True)
+                continue
+            if end == len(self.buffer) and not self.eof:
+                self._fill(grow=True)  # a number or literal may go on in the next chunk
+                continue
+            self.pos = end
+            return value
+
+    def _list_by_orjson(self) -> list | None:
+        """The list starting here, decoded by orjson (several times faster), or None.
+
+        The candidate end is the first ``}]`` (or ``[]`` right here): a slice that orjson
+        decodes as a whole is exactly the list that starts here, since a JSON array ends at
+        its matching bracket. Anything else (a ``}]`` inside a string, NaN, which orjson
+        rejects, a list cut by the end of the buffer) returns None for the json module.
+        """
+        match = _EMPTY_LIST.match(self.buffer, self.pos) or _LIST_END.search(self.buffer, self.pos)
+        if match is None:
+            return None
+        try:
+            value = orjson.loads(self.buffer[self.pos:match.end()])
+        except orjson.JSONDecodeError:
+            return None
+        self.pos = match.end()
+        return value
+
+    def _members(self, where: str) -> Iterator[str]:
+        """Keys of the object starting here; the caller decodes each value."""
+        self._expect("{", f"'{{' to open {where}")
+        if self._skip_whitespace() == "}":
+            self.pos += 1
+            return
+        while True:
+            if self._skip_whitespace() != '"':
+                raise self._error(f"expected a string key in {where}")
+            key = self.value()
+            self._expect(":", "':' after a key")
+            yield key
+            if self._expect(",}", f"',' or '}}' in {where}") == "}":
+                return
+
+    def object_keys(self) -> Iterator[str]:
+        """Keys of the top-level object (each once), then checks nothing follows it."""
+        seen: set[str] = set()
+        for key in self._members("the top-level object"):
+            if key in seen:
+                raise DataFormatError(self.path, "field given twice", field=key)
+            seen.add(key)
+            yield key
+        if self._skip_whitespace():
+            raise self._error("extra data after the top-level object")
+
+    def object_items(self, where: str) -> Iterator[tuple[str, Any]]:
+        """(key, decoded value) of the object that is the next value."""
+        for key in self._members(f"'{where}'"):
+            yield key, self.value()
+
+
+# --------------------------------------------------------------------------- writing
+
+
+def write_results(path: str | Path, results: Results, *, overwrite: bool = False) -> Path:
+    """Write results in the submission format, atomically (temporary file + rename).
+
+    Validates first (nothing is written on failure) and refuses to replace an existing file
+    unless ``overwrite``. Floats are written with Python's shortest exact repr; a NaN velocity
+    is written as ``NaN`` (as Python's json module and the devkit read and write it).
+    """
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise OutputExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
+    validate_results(results)
+    boxes = results.boxes
+    bounds = results.sample_bounds()
+    columns = {
+        "translation": boxes["translation"].tolist(),
+        "size": boxes["size"].tolist(),
+        "rotation": boxes["rotation"].tolist(),
+        "velocity": boxes["velocity"].tolist(),
+        "detection_name": [DETECTION_NAMES[k] for k in boxes["label"].tolist()],
+        "detection_score": boxes["score"].tolist(),
+        "attribute_name": [ATTRIBUTE_NAMES[k] if k >= 0 else "" for k in boxes["attribute"].tolist()],
+    }
+    with atomic_output(path) as out:
+        out.write('{"meta": ' + json.dumps(results.meta) + ', "results": {')
+        for i, token in enumerate(results.sample_tokens):
+            entries = [
+                {"sample_token": token, **{name: values[row] for name, values in columns.items()}}
+                for row in range(bounds[i], bounds[i + 1])
+            ]
+            out.write(("" if i == 0 else ", ") + json.dumps(token) + ": " + json.dumps(entries))
+        out.write("}}\n")
+    return path
+
+
+@contextmanager
+def atomic_output(path: str | Path) -> Iterator[TextIO]:
+    """A text stream whose content appears at ``path`` only when the block completes.
+
+    Writes a temporary file in the same folder (created if needed), gives it the permissions a
+    new file gets (umask), and renames it over ``path``; on any error the temporary file is
+    removed and ``path`` is untouched.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, temp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".partial")
+    try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(temp_name, 0o666 & ~umask)
+        with os.fdopen(handle, "w", encoding="utf-8") as stream:
+            yield stream
+        os.replace(temp_name, path)
+    except BaseException:
+        Path(temp_name).unlink(missing_ok=True)
+        raise
+
+
+def results_from_boxes(sample_tokens: Sequence[str], boxes: np.ndarray, meta: dict | None = None,
+                       path: str = "<results>") -> Results:
+    """Results from a box table whose ``sample`` indexes ``sample_tokens``: rows are grouped by
+    sample (stable, so list order within a sample is kept)."""
+    order = np.argsort(boxes["sample"], kind="stable")
+    meta = {flag: False for flag in META_FLAGS} if meta is None else meta
+    return Results(tuple(sample_tokens), boxes[order], meta, path)
