@@ -94,14 +94,14 @@ _SWEPT_EDGES = np.concatenate([_BOX_EDGES, _BOX_EDGES + 8, [(i, i + 8) for i in 
 class CameraRender:
     """One rendered image.
 
-    image (H,W,3) uint8 sRGB; owner_map (H,W) int32 object index of the nearest surface
+    image (H,W,3) uint8 sRGB, None when only coverage was asked for; owner_map (H,W) int32 object index of the nearest surface
     (-1 for ground, sky and scenery); depth (H,W) float32 z-depth in the camera frame,
     metres (inf for sky); object_pixels (n_objects,) int64 pixels each object covers with
     nothing in front of it; visible_pixels (n_objects,) int64 pixels where it is the
     nearest surface.
     """
 
-    image: np.ndarray
+    image: np.ndarray | None
     owner_map: np.ndarray
     depth: np.ndarray
     object_pixels: np.ndarray
@@ -873,7 +873,7 @@ def _apply_style(radiance: np.ndarray, style: CameraStyle, view: _View, rows: sl
 
 def render_camera(parts: Parts, appearances, ground_shader, intrinsic, cam_to_world, width: int,
                   height: int, style: CameraStyle, sun_direction, n_objects: int,
-                  rng: np.random.Generator) -> CameraRender:
+                  rng: np.random.Generator, shade: bool = True) -> CameraRender:
     """Render one camera image with its owner map and depth buffer.
 
     parts: every part of the frame, global frame (owner -1 = scenery); appearances:
@@ -882,7 +882,8 @@ def render_camera(parts: Parts, appearances, ground_shader, intrinsic, cam_to_wo
     intrinsic (3,3) pinhole K; cam_to_world (4,4) camera (OpenCV axes) to global;
     width, height in pixels; style: the camera's `CameraStyle`; sun_direction (3,) towards
     the sun, global frame (normalised here); n_objects: length of the per-object counts
-    (owners outside [0, n_objects) are not counted); rng: draws the sensor noise only.
+    (owners outside [0, n_objects) are not counted); rng: draws the sensor noise only;
+    shade: False skips shading (image None) when only the coverage counts are needed.
     """
     view = _make_view(np.asarray(intrinsic, np.float64), np.asarray(cam_to_world, np.float64), width, height)
     sun = np.asarray(sun_direction, np.float64)
@@ -899,6 +900,10 @@ def render_camera(parts: Parts, appearances, ground_shader, intrinsic, cam_to_wo
     owner_map = np.take(np.append(parts.owner, np.int32(-1)), part_buf)  # part -1: owner -1
     counted = (owner_map >= 0) & (owner_map < n_objects)
     visible_pixels = np.bincount(owner_map[counted], minlength=n_objects)[:n_objects].astype(np.int64)
+    if not shade:
+        return CameraRender(image=None, owner_map=owner_map.reshape(height, width),
+                            depth=depth.reshape(height, width), object_pixels=object_pixels,
+                            visible_pixels=visible_pixels)
 
     scene = _Scene(_part_table(parts, view), _looks(appearances, parts, n_objects), ground_shader, view, sun,
                    _shadow_casters(parts, view, sun))

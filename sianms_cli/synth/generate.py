@@ -366,7 +366,9 @@ class _SceneSensing:
         style_rng = _scene_rng(config.seed, index, "camera-style")
         self.styles = {channel: camera_style(style_rng) for channel in CAMERA_CHANNELS}
         self.sun = _sun_direction(_scene_rng(config.seed, index, "sun"))
-        self.noise_rng = _scene_rng(config.seed, index, "sensor-noise")
+        # Separate streams, so the LiDAR (and num_lidar_pts) is the same with --sensors none.
+        self.lidar_rng = _scene_rng(config.seed, index, "lidar-noise")
+        self.camera_rng = _scene_rng(config.seed, index, "camera-noise")
 
     def sense_keyframe(self, k: int, sample_token: str, calibration_tokens: dict, image_size) -> tuple[_Frame, dict]:
         """LiDAR scan and camera renders of keyframe ``k``; writes the sensor files."""
@@ -381,7 +383,7 @@ class _SceneSensing:
         records = {}
         lidar = self.calibration[LIDAR_CHANNEL]
         lidar_to_global = ego_to_global @ make_transform(lidar.rotation, lidar.translation)
-        scan = scan_lidar(self._parts_at(center, yaw, near), lidar_to_global, self.noise_rng,
+        scan = scan_lidar(self._parts_at(center, yaw, near), lidar_to_global, self.lidar_rng,
                           ground_reflectivity=plan.street.ground_reflectivity)
         points_global = apply_transform(lidar_to_global, scan.points[:, :3])
         lidar_points = np.zeros(len(center), dtype=np.int64)
@@ -439,7 +441,8 @@ class _SceneSensing:
         width, height = round(FULL_IMAGE_SIZE[0] * scale), round(FULL_IMAGE_SIZE[1] * scale)
         return render_camera(parts, self.appearances, self.plan.street.ground_albedo,
                              calibration.intrinsic(scale), cam_to_global, width, height,
-                             self.styles[channel], self.sun, len(self.appearances), self.noise_rng)
+                             self.styles[channel], self.sun, len(self.appearances), self.camera_rng,
+                             shade=self.config.sensors == "all")
 
     def _sample_data(self, channel, sample_token, timestamp, ego_to_global, calibration_tokens, image_size, data):
         """sample_data and ego_pose records of one sensor reading; writes its file."""

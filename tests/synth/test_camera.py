@@ -171,3 +171,15 @@ def test_sensor_noise_has_the_style_standard_deviation():
     noise = (noisy - clean)[mid]
     assert abs(noise.mean()) < 0.1
     assert noise.std() == pytest.approx(2.55, rel=0.1)
+
+
+def test_coverage_only_render_skips_the_image_and_keeps_the_counts():
+    occluded = concat_parts([cube(0, center=(10.0, 0.0, 1.5)), cube(1, center=(6.0, 0.6, 1.5), half=(0.3, 0.5, 0.5))])
+    apps = [sample_appearance("car", np.random.default_rng(i)) for i in range(2)]
+    args = (occluded, apps, flat_ground, K, CAM_TO_WORLD, W, H, CameraStyle(), np.array([0.3, 0.2, 0.9]), 2)
+    full = render_camera(*args, np.random.default_rng(0))
+    coverage = render_camera(*args, np.random.default_rng(0), shade=False)
+    assert coverage.image is None and full.image is not None
+    np.testing.assert_array_equal(coverage.owner_map, full.owner_map)
+    np.testing.assert_array_equal(coverage.visible_pixels, full.visible_pixels)
+    np.testing.assert_array_equal(coverage.object_pixels, full.object_pixels)
