@@ -18,9 +18,7 @@ was interrupted and resumed.
 
 from __future__ import annotations
 
-import math
 import multiprocessing
-import os
 import shutil
 import zlib
 from dataclasses import asdict, dataclass, field
@@ -39,7 +37,8 @@ from sianms_cli.data.pairs import contiguous_pairs
 from sianms_cli.data.schemas import DATASETS, FRUSTUMS_SCHEMA, PAIRS_SCHEMA, detections_schema, with_metadata
 from sianms_cli.detection2d.association import associate
 from sianms_cli.detection2d.backbones import BACKBONES, STRIDE, build_backbone
-from sianms_cli.detection2d.classes import PAPER_CLASSES, check_classes, detection_classes_of
+from sianms_cli.detection2d.classes import check_classes, detection_classes_of
+from sianms_cli.nuscenes.classes import PAPER_CLASSES
 from sianms_cli.detection2d.detections import Detections2D
 from sianms_cli.detection2d.external import ExternalDetections
 from sianms_cli.detection2d.ground_truth import camera_ground_truth

@@ -11,7 +11,6 @@ from sianms_cli.data.index import build_pair_index
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
 from sianms_cli.geometry.frustum import points_in_frustum, rotate_from_frustum
 from sianms_cli.geometry.boxes import points_in_boxes
-from sianms_cli.geometry.rig import CameraRig
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.rigs import sample_rigs
 from sianms_cli import prepare as prepare_module

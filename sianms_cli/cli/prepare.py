@@ -9,7 +9,7 @@ from typing import Optional
 import typer
 
 from sianms_cli.cli._app import command
-from sianms_cli.detection2d.classes import PAPER_CLASSES
+from sianms_cli.nuscenes.classes import PAPER_CLASSES
 from sianms_cli.prepare import PrepareConfig, prepare
 
 

@@ -22,7 +22,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from sianms_cli.detection2d.classes import DETECTION_CLASSES
+from sianms_cli.nuscenes.classes import DETECTION_CLASSES
 from sianms_cli.detection2d.detections import Detections2D
 from sianms_cli.errors import DataFormatError
 from sianms_cli.nuscenes.loader import NuScenesDB, read_json

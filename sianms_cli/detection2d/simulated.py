@@ -33,7 +33,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from sianms_cli.detection2d.association import box_iou
-from sianms_cli.detection2d.classes import check_classes, PAPER_CLASSES
+from sianms_cli.detection2d.classes import check_classes
+from sianms_cli.nuscenes.classes import PAPER_CLASSES
 from sianms_cli.detection2d.detections import Detections2D
 from sianms_cli.detection2d.ground_truth import CameraGroundTruth
 from sianms_cli.errors import SianmsError
