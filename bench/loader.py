@@ -1,0 +1,56 @@
+"""Benchmark the nuScenes table loader against the official devkit on the same dataroot.
+
+Loads ``DATAROOT/VERSION`` with :class:`NuScenesDB` and, when the devkit venv exists
+(``scripts/devkit_venv.sh``), with ``nuscenes.NuScenes`` in a child process of that venv,
+and prints both times, their ratio and our peak memory.
+
+    python bench/loader.py data/synth-mini v1.0-mini
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from sianms_cli.nuscenes.loader import NuScenesDB
+
+REPO = Path(__file__).resolve().parents[1]
+DEVKIT_PYTHON = Path(os.environ.get("SIANMS_DEVKIT_PYTHON", REPO / ".devkit-venv" / "bin" / "python"))
+DEVKIT_LOAD = """
+import sys, time
+from nuscenes.nuscenes import NuScenes
+start = time.perf_counter()
+NuScenes(version=sys.argv[2], dataroot=sys.argv[1], verbose=False)
+print(time.perf_counter() - start)
+"""
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("dataroot", type=Path)
+    parser.add_argument("version")
+    args = parser.parse_args()
+
+    start = time.perf_counter()
+    db = NuScenesDB(args.dataroot, args.version)
+    ours = time.perf_counter() - start
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    sizes = ", ".join(f"{name} {len(db.table(name))}" for name in ("sample", "sample_data", "sample_annotation"))
+    print(f"{args.dataroot}/{args.version}: {sizes}")
+    print(f"  sianms NuScenesDB: {ours:.2f} s, peak RSS {peak:.0f} MiB")
+    if not DEVKIT_PYTHON.exists():
+        print(f"  devkit: not measured ({DEVKIT_PYTHON} absent; run scripts/devkit_venv.sh)")
+        return
+    result = subprocess.run([str(DEVKIT_PYTHON), "-c", DEVKIT_LOAD, str(args.dataroot), args.version],
+                            capture_output=True, text=True, check=True)
+    devkit = float(result.stdout.strip().splitlines()[-1])
+    print(f"  nuscenes-devkit NuScenes(): {devkit:.2f} s -> devkit / sianms = {devkit / ours:.1f}x")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
