@@ -20,7 +20,7 @@ import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 import numpy as np
 from tqdm import tqdm
@@ -166,10 +166,9 @@ def synthesize(
             jobs = [(staging, config, index, name) for index, name in enumerate(names)]
             with tqdm(total=len(names) * config.keyframes, unit="sample", desc="synth",
                       disable=not progress) as bar:
-                for records in _run_scenes(jobs, workers):
+                for records in _run_scenes(jobs, workers, bar):
                     for table, record in records:
                         writer.add(table, record)
-                    bar.update(config.keyframes)
         _move_into_place(staging, out)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
@@ -177,13 +176,19 @@ def synthesize(
     return out
 
 
-def _run_scenes(jobs: list[tuple], workers: int) -> Iterator[list[tuple[str, dict]]]:
-    """Records of every scene, in scene order, sensed in ``workers`` processes."""
+def _run_scenes(jobs: list[tuple], workers: int, bar: tqdm) -> Iterator[list[tuple[str, dict]]]:
+    """Records of every scene, in scene order, sensed in ``workers`` processes.
+
+    The bar advances per keyframe in this process, per scene from worker processes.
+    """
     if workers == 1 or len(jobs) == 1:
-        yield from (_scene_records(*job) for job in jobs)
+        for job in jobs:
+            yield _scene_records(*job, on_keyframe=lambda: bar.update(1))
         return
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        yield from pool.map(_scene_records, *zip(*jobs))
+        for job, records in zip(jobs, pool.map(_scene_records, *zip(*jobs))):
+            bar.update(job[1].keyframes)
+            yield records
 
 
 def _move_into_place(staging: Path, out: Path) -> None:
@@ -231,12 +236,14 @@ class _Frame:
     visibility: np.ndarray  # (N,) visible fraction across all cameras, NaN when unseen
 
 
-def _scene_records(staging: Path, config: SynthConfig, index: int, name: str) -> list[tuple[str, dict]]:
+def _scene_records(staging: Path, config: SynthConfig, index: int, name: str,
+                   on_keyframe: Callable[[], object] | None = None) -> list[tuple[str, dict]]:
     """Sense every keyframe of one scene, writing its sensor files; return its table records."""
-    return list(_scene_record_stream(staging, config, index, name))
+    return list(_scene_record_stream(staging, config, index, name, on_keyframe))
 
 
-def _scene_record_stream(staging: Path, config: SynthConfig, index: int, name: str) -> Iterator[tuple[str, dict]]:
+def _scene_record_stream(staging: Path, config: SynthConfig, index: int, name: str,
+                         on_keyframe: Callable[[], object] | None) -> Iterator[tuple[str, dict]]:
     seed = config.seed
     location = _scene_location(seed, index)
     vehicle, rig, drive_side, utc = LOCATIONS[location]
@@ -274,6 +281,8 @@ def _scene_record_stream(staging: Path, config: SynthConfig, index: int, name: s
         for channel, (sample_data, ego_pose) in records.items():
             sample_data_records[channel].append(sample_data)
             yield "ego_pose", ego_pose
+        if on_keyframe is not None:
+            on_keyframe()
 
     for k, token in enumerate(sample_tokens):
         yield "sample", {

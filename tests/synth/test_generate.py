@@ -98,7 +98,7 @@ def test_refuses_a_non_empty_output_and_replaces_it_when_told(tmp_path, make_tin
 
 
 def test_an_interrupted_run_leaves_nothing(tmp_path, monkeypatch, make_tiny):
-    def fail(*args):
+    def fail(*args, **kwargs):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(generate, "_scene_records", fail)
