@@ -393,17 +393,7 @@ def accumulate_thresholds(gt: np.ndarray, pred: np.ndarray, class_name: str | in
         One :class:`MetricData` per threshold, in the order given.
     """
     label = _label(class_name)
-    return _accumulate_class(gt[gt["label"] == label], pred[pred["label"] == label], label, dist_ths)
-
-
-def accumulate(gt: np.ndarray, pred: np.ndarray, class_name: str | int, dist_th: float) -> MetricData:
-    """The devkit's ``accumulate(gt, pred, class_name, center_distance, dist_th)``."""
-    return accumulate_thresholds(gt, pred, class_name, [dist_th])[0]
-
-
-def _accumulate_class(gt: np.ndarray, pred: np.ndarray, label: int, dist_ths: Sequence[float]
-                      ) -> list[MetricData]:
-    """:func:`accumulate_thresholds` on tables holding only rows of class ``label``."""
+    gt, pred = _of_label(gt, label), _of_label(pred, label)
     if len(gt) == 0:
         return [MetricData.no_predictions() for _ in dist_ths]
     gt, pred = _Columns(gt), _Columns(pred)
@@ -411,6 +401,17 @@ def _accumulate_class(gt: np.ndarray, pred: np.ndarray, label: int, dist_ths: Se
     matched, distance = greedy_match(gt.sample, gt.xy, pred.sample, pred.xy, order, dist_ths)
     period = np.pi if label == LABEL["barrier"] else 2 * np.pi
     return [_metric_data(gt, pred, order, m, d, period) for m, d in zip(matched, distance)]
+
+
+def accumulate(gt: np.ndarray, pred: np.ndarray, class_name: str | int, dist_th: float) -> MetricData:
+    """The devkit's ``accumulate(gt, pred, class_name, center_distance, dist_th)``."""
+    return accumulate_thresholds(gt, pred, class_name, [dist_th])[0]
+
+
+def _of_label(boxes: np.ndarray, label: int) -> np.ndarray:
+    """The rows of one class (no copy when every row is of that class)."""
+    mine = boxes["label"] == label
+    return boxes if mine.all() else boxes[mine]
 
 
 def _metric_data(gt: _Columns, pred: _Columns, order, matched, distance, period) -> MetricData:

@@ -22,10 +22,9 @@ from __future__ import annotations
 
 import numpy as np
 
-DETECTION_NAMES: tuple[str, ...] = (
-    "car", "truck", "bus", "trailer", "construction_vehicle",
-    "pedestrian", "motorcycle", "bicycle", "traffic_cone", "barrier",
-)
+from sianms_cli.nuscenes.classes import DETECTION_CLASSES
+
+DETECTION_NAMES: tuple[str, ...] = DETECTION_CLASSES
 """The 10 detection classes of the nuScenes detection task, in the devkit's order."""
 
 ATTRIBUTE_NAMES: tuple[str, ...] = (
@@ -40,24 +39,6 @@ OTHER_ATTRIBUTE = -2
 
 TP_METRICS: tuple[str, ...] = ("trans_err", "scale_err", "orient_err", "vel_err", "attr_err")
 """The five true-positive error metrics, in the devkit's order (ATE, ASE, AOE, AVE, AAE)."""
-
-CATEGORY_TO_DETECTION: dict[str, str] = {
-    "movable_object.barrier": "barrier",
-    "vehicle.bicycle": "bicycle",
-    "vehicle.bus.bendy": "bus",
-    "vehicle.bus.rigid": "bus",
-    "vehicle.car": "car",
-    "vehicle.construction": "construction_vehicle",
-    "vehicle.motorcycle": "motorcycle",
-    "human.pedestrian.adult": "pedestrian",
-    "human.pedestrian.child": "pedestrian",
-    "human.pedestrian.construction_worker": "pedestrian",
-    "human.pedestrian.police_officer": "pedestrian",
-    "movable_object.trafficcone": "traffic_cone",
-    "vehicle.trailer": "trailer",
-    "vehicle.truck": "truck",
-}
-"""The devkit's category -> detection class map; every other category is not evaluated."""
 
 BICYCLE_RACK = "static_object.bicycle_rack"
 RACK_FILTERED = ("bicycle", "motorcycle")

@@ -28,6 +28,7 @@ import numpy as np
 
 from sianms_cli.errors import DataFormatError, SianmsError
 from sianms_cli.evaluation.boxes import DETECTION_NAMES, LABEL
+from sianms_cli.nuscenes.classes import PAPER_CLASSES
 from sianms_cli.nuscenes.loader import read_json
 
 DETECTION_CVPR_2019: dict[str, Any] = {
@@ -55,7 +56,7 @@ DETECTION_CVPR_2019: dict[str, Any] = {
 
 PAPER: dict[str, Any] = {
     **DETECTION_CVPR_2019,
-    "class_range": {"car": 50, "pedestrian": 40, "bicycle": 40},
+    "class_range": {name: DETECTION_CVPR_2019["class_range"][name] for name in PAPER_CLASSES},
 }
 """The paper's protocol (§V-A): car, pedestrian and bicycle (its "cyclist"), with the devkit's
 ranges, thresholds 0.5/1/2/4 m, TP errors at 2 m."""

@@ -21,12 +21,12 @@ from sianms_cli.errors import DataFormatError, SianmsError
 from sianms_cli.evaluation.boxes import (
     ATTRIBUTE,
     BICYCLE_RACK,
-    CATEGORY_TO_DETECTION,
     LABEL,
     NO_ATTRIBUTE,
     OTHER_ATTRIBUTE,
     empty_boxes,
 )
+from sianms_cli.nuscenes.classes import CATEGORY_TO_DETECTION
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.splits import PREDEFINED_SPLITS, split_scene_names
 
@@ -101,6 +101,12 @@ def _split_index(db: NuScenesDB, split: EvalSplit) -> np.ndarray:
     return index
 
 
+def _categories(db: NuScenesDB) -> tuple[np.ndarray, np.ndarray]:
+    """(category names (C,), category row of every annotation (N,)): rows, not N strings."""
+    categories = db.table("instance").rows("category_token")[db.table("sample_annotation").rows("instance_token")]
+    return db.table("category").column("name"), categories
+
+
 def _annotations_in_split(db: NuScenesDB, split: EvalSplit, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(annotation rows, their split sample index) for annotations with ``keep``, ordered by
     sample (split order) then file order (the devkit's ``sample['anns']``)."""
@@ -122,10 +128,10 @@ def ground_truth(db: NuScenesDB, split: EvalSplit) -> tuple[np.ndarray, np.ndarr
     the devkit refuses it.
     """
     annotations = db.table("sample_annotation")
-    category_names = db.annotation_category_names()
-    names, inverse = np.unique(category_names, return_inverse=True)
-    label_of_name = np.array([LABEL.get(CATEGORY_TO_DETECTION.get(str(n), ""), -1) for n in names], dtype=np.int64)
-    label_of_row = label_of_name[inverse.reshape(-1)] if len(names) else np.zeros(0, np.int64)
+    names, category_of_row = _categories(db)
+    label_of_category = np.array([LABEL.get(CATEGORY_TO_DETECTION.get(str(n), ""), -1) for n in names],
+                                 dtype=np.int64)
+    label_of_row = label_of_category[category_of_row]
     rows, samples = _annotations_in_split(db, split, label_of_row >= 0)
 
     boxes = empty_boxes(len(rows))
@@ -183,7 +189,8 @@ def bicycle_racks(db: NuScenesDB, split: EvalSplit) -> np.ndarray:
     """The ``static_object.bicycle_rack`` annotations of the split as a box table (label 0,
     unused): sample, translation, size, rotation."""
     annotations = db.table("sample_annotation")
-    rows, samples = _annotations_in_split(db, split, db.annotation_category_names() == BICYCLE_RACK)
+    names, category_of_row = _categories(db)
+    rows, samples = _annotations_in_split(db, split, np.isin(category_of_row, np.flatnonzero(names == BICYCLE_RACK)))
     racks = empty_boxes(len(rows))
     racks["sample"] = samples
     racks["translation"] = annotations.column("translation")[rows]

@@ -43,6 +43,7 @@ from sianms_cli.evaluation.results import (
     Results,
     ResultsFormatError,
     atomic_output,
+    check_box_counts,
     read_results,
     validate_results,
 )
@@ -76,12 +77,12 @@ def align_results(results: Results, split: EvalSplit) -> tuple[np.ndarray, int]:
             results.path, f"not a sample of split '{split.name}' ({len(extra)} such samples); the results "
             "of a predefined split must hold exactly its samples", token=results.sample_tokens[extra[0]],
             field="results")
-    boxes = results.boxes
-    split_index = index[boxes["sample"]]
-    kept = boxes[split_index >= 0]
-    kept["sample"] = split_index[split_index >= 0]
+    split_index = index[results.boxes["sample"]]
+    rows = np.flatnonzero(split_index >= 0)
     if not split.predefined:
-        kept = kept[np.argsort(kept["sample"], kind="stable")]
+        rows = rows[np.argsort(split_index[rows], kind="stable")]
+    kept = results.boxes[rows]  # the one copy of the predictions
+    kept["sample"] = split_index[rows]
     return kept, len(extra)
 
 
@@ -90,7 +91,7 @@ def evaluate(
     split: str | EvalSplit,
     results: Results,
     config: str | Path | DetectionConfig = "detection_cvpr_2019",
-    regions: Sequence[str] = (ALL,),
+    regions: Sequence[str] | str = (ALL,),
 ) -> dict[str, Any]:
     """Evaluate results on a split, per region.
 
@@ -100,7 +101,7 @@ def evaluate(
         results: the results (:func:`~sianms_cli.evaluation.results.read_results`), validated
             here against the configuration's box limit.
         config: a preset name (``detection_cvpr_2019``, ``paper``), a JSON file or a config.
-        regions: region names (:mod:`sianms_cli.evaluation.regions`).
+        regions: region names (:mod:`sianms_cli.evaluation.regions`), or one comma-separated string.
 
     Returns:
         The report: ``split``, ``samples``, ``config`` (its name), ``cfg``, ``boxes`` (counts
@@ -108,9 +109,13 @@ def evaluate(
         devkit's exempt TP errors}, ``region_boxes`` {name: {"gt"|"pred": {class: count}}}.
     """
     started = time.perf_counter()
+    regions = regions.split(",") if isinstance(regions, str) else list(regions)
     config = load_config(config)
     split = eval_split(db, split) if isinstance(split, str) else split
-    validate_results(results, config.max_boxes_per_sample)
+    if results.validated:
+        check_box_counts(results, config.max_boxes_per_sample)
+    else:
+        validate_results(results, config.max_boxes_per_sample)
     pred, ignored = align_results(results, split)
     gt, annotation_rows = ground_truth(db, split)
     ego_rotation, ego_translation = ego_poses(db, split)
@@ -133,8 +138,8 @@ def evaluate(
     summaries: dict[str, dict] = {}
     region_boxes: dict[str, dict] = {}
     for name in names:
-        gt_in = gt[region_mask(name, overlap["gt"], len(gt))]
-        pred_in = pred[region_mask(name, overlap["pred"], len(pred))]
+        gt_in = gt if name == ALL else gt[region_mask(name, overlap["gt"], len(gt))]
+        pred_in = pred if name == ALL else pred[region_mask(name, overlap["pred"], len(pred))]
         summary, _ = evaluate_boxes(gt_in, pred_in, config)
         summary["meta"] = results.meta
         summaries[name] = summary

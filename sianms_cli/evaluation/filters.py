@@ -76,7 +76,6 @@ def filter_boxes(boxes: np.ndarray, ego_translation: np.ndarray, racks: np.ndarr
     """
     in_range = ego_distance(boxes, ego_translation) < config.range_by_label()[boxes["label"]]
     with_points = in_range & ~(ground_truth & (boxes["num_pts"] == 0))
-    kept = with_points.copy()
-    kept[with_points] = ~in_bicycle_rack(boxes[with_points], racks)
+    kept = with_points & ~in_bicycle_rack(boxes, racks)  # per-box tests: the order only matters for counts
     return FilterResult(kept, int(len(boxes) - in_range.sum()), int(in_range.sum() - with_points.sum()),
                         int(with_points.sum() - kept.sum()))

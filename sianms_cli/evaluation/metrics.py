@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from sianms_cli.evaluation.algo import MetricData, _accumulate_class, calc_ap, calc_tp
+from sianms_cli.evaluation.algo import MetricData, accumulate_thresholds, calc_ap, calc_tp
 from sianms_cli.evaluation.boxes import DETECTION_NAMES, TP_METRICS
 from sianms_cli.evaluation.config import DetectionConfig
 
@@ -49,7 +49,7 @@ def evaluate_boxes(gt: np.ndarray, pred: np.ndarray, config: DetectionConfig
     metric_data: dict[tuple[str, float], MetricData] = {}
     gt_rows, pred_rows = _rows_by_label(gt), _rows_by_label(pred)
     for class_name, label in zip(config.class_names, config.labels):
-        curves = _accumulate_class(gt[gt_rows[label]], pred[pred_rows[label]], int(label), config.dist_ths)
+        curves = accumulate_thresholds(gt[gt_rows[label]], pred[pred_rows[label]], int(label), config.dist_ths)
         for dist_th, md in zip(config.dist_ths, curves):
             metric_data[(class_name, dist_th)] = md
     label_aps: dict[str, dict[str, float]] = {}

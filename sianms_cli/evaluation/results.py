@@ -73,8 +73,9 @@ BOX_KEYS = ("sample_token", "translation", "size", "rotation", "velocity",
             "detection_name", "detection_score", "attribute_name")
 _VECTORS = {"translation": 3, "size": 3, "rotation": 4, "velocity": 2}
 _ATTRIBUTE_CODES = {"": NO_ATTRIBUTE, **ATTRIBUTE}
+_GETTERS = tuple(itemgetter(key) for key in BOX_KEYS)
 _CHUNK_CHARS = 1 << 23  # characters read at a time
-_BATCH_BOXES = 1 << 16  # boxes converted to arrays at a time
+_BATCH_BOXES = 1 << 13  # boxes decoded, then converted to arrays, at a time
 
 
 class ResultsFormatError(DataFormatError):
@@ -100,12 +101,15 @@ class Results:
             (the devkit's flattened order).
         meta: the ``meta`` object.
         path: where it was read from (for messages); ``"<results>"`` when built in memory.
+        validated: :func:`read_results` checked every value already, so the evaluation only
+            checks the per-sample limit of its configuration.
     """
 
     sample_tokens: tuple[str, ...]
     boxes: np.ndarray
     meta: dict = field(default_factory=lambda: {flag: False for flag in META_FLAGS})
     path: str = "<results>"
+    validated: bool = field(default=False, repr=False)
 
     def sample_bounds(self) -> np.ndarray:
         """(S + 1,) int64: the boxes of sample i are rows bounds[i]:bounds[i + 1]."""
@@ -133,12 +137,7 @@ def validate_results(results: Results, max_boxes_per_sample: int = MAX_BOXES_PER
         seen: set[str] = set()
         duplicate = next(t for t in results.sample_tokens if t in seen or seen.add(t))
         raise ResultsFormatError(path, "sample listed twice", token=duplicate, field="results")
-    bounds = results.sample_bounds()
-    counts = np.diff(bounds)
-    if (counts > max_boxes_per_sample).any():
-        sample = int(np.flatnonzero(counts > max_boxes_per_sample)[0])
-        raise ResultsFormatError(path, f"{counts[sample]} boxes; at most {max_boxes_per_sample} per sample",
-                                 token=results.sample_tokens[sample], field="results")
+    bounds = check_box_counts(results, max_boxes_per_sample)
     bad = _first_bad_row(boxes)
     if bad is not None:
         row, name, message = bad
@@ -147,17 +146,33 @@ def validate_results(results: Results, max_boxes_per_sample: int = MAX_BOXES_PER
                                  box_index=row - int(bounds[sample]))
 
 
-def _first_bad_row(boxes: np.ndarray) -> tuple[int, str, str] | None:
-    """(row, field, message) of the first box breaking a value rule, first failing field."""
-    checks = _value_checks(boxes)
-    bad = np.zeros(len(boxes), dtype=bool)
-    for _, mask, _ in checks:
-        bad |= mask
-    if not bad.any():
-        return None
-    row = int(np.flatnonzero(bad)[0])
-    name, _, describe = next(check for check in checks if check[1][row])
-    return row, name, describe(row)
+def check_box_counts(results: Results, max_boxes_per_sample: int) -> np.ndarray:
+    """Raise ResultsFormatError for the first sample with more boxes than allowed; returns
+    :meth:`Results.sample_bounds`."""
+    bounds = results.sample_bounds()
+    counts = np.diff(bounds)
+    if (counts > max_boxes_per_sample).any():
+        sample = int(np.flatnonzero(counts > max_boxes_per_sample)[0])
+        raise ResultsFormatError(results.path, f"{counts[sample]} boxes; at most {max_boxes_per_sample} per sample",
+                                 token=results.sample_tokens[sample], field="results")
+    return bounds
+
+
+def _first_bad_row(boxes: np.ndarray, chunk: int = 1 << 18) -> tuple[int, str, str] | None:
+    """(row, field, message) of the first box breaking a value rule, first failing field.
+
+    Checked in chunks of rows (views), so the temporaries stay small.
+    """
+    for start in range(0, len(boxes), chunk):
+        checks = _value_checks(boxes[start:start + chunk])
+        bad = np.zeros(min(chunk, len(boxes) - start), dtype=bool)
+        for _, mask, _ in checks:
+            bad |= mask
+        if bad.any():
+            row = int(np.flatnonzero(bad)[0])
+            name, _, describe = next(check for check in checks if check[1][row])
+            return start + row, name, describe(row)
+    return None
 
 
 def _value_checks(boxes: np.ndarray) -> list[tuple[str, np.ndarray, Callable[[int], str]]]:
@@ -232,9 +247,8 @@ def read_results(path: str | Path, *, max_boxes_per_sample: int = MAX_BOXES_PER_
     if not has_results:
         raise DataFormatError(path, "no 'results' object", field="results")
     _check_meta(path, meta)
-    results = Results(tuple(tokens), np.concatenate(parts), meta, str(path))
-    validate_results(results, max_boxes_per_sample)
-    return results
+    # Values were checked batch by batch, counts and duplicates sample by sample.
+    return Results(tuple(tokens), np.concatenate(parts), meta, str(path), validated=True)
 
 
 def _sample_problem(token: str, boxes: Any, seen: set[str], max_boxes: int) -> str | None:
@@ -264,8 +278,6 @@ def _kind(value: Any) -> str:
 
 class _Batch:
     """Boxes of a few samples, decoded from JSON, converted to a box table in one go."""
-
-    _fields = itemgetter(*BOX_KEYS)
 
     def __init__(self, path: Path) -> None:
         self.path = path
@@ -313,10 +325,10 @@ class _Batch:
         if not _types_within(boxes, (dict,)):
             return None
         try:
-            columns = list(zip(*map(self._fields, boxes)))
+            tokens, translation, size, rotation, velocity, names, scores, attributes = (
+                list(map(getter, boxes)) for getter in _GETTERS)
         except KeyError:
             return None
-        tokens, translation, size, rotation, velocity, names, scores, attributes = columns
         expected = list(chain.from_iterable(repeat(token, count) for _, token, count in self.samples))
         if list(tokens) != expected:
             return None
@@ -418,6 +430,7 @@ def _fits_float(values: list) -> bool:
 
 
 _WHITESPACE = re.compile(r"[ \t\n\r]*")
+_SIMPLE_STRING = re.compile(r'"([^"\\\x00-\x1f]*)"')
 _EMPTY_LIST = re.compile(r"\[[ \t\n\r]*\]")
 _LIST_END = re.compile(r"\}[ \t\n\r]*\]")
 
@@ -435,7 +448,7 @@ class _JsonStream:
         self.decoder = json.JSONDecoder()
         self.buffer = ""
         self.pos = 0
-        self.lines = 0  # newlines before the buffer
+        self.offset = 0  # characters of the file before the buffer
         self.eof = False
 
     def __enter__(self) -> _JsonStream:
@@ -451,8 +464,7 @@ class _JsonStream:
     def _fill(self, grow: bool = False) -> None:
         """Drop the consumed text and read a chunk; ``grow``: at least double the pending text
         (a value longer than a chunk is then re-decoded O(log n) times, not O(n / chunk))."""
-        dropped = self.buffer[:self.pos]
-        self.lines += dropped.count("\n")
+        self.offset += self.pos
         size = max(_CHUNK_CHARS, len(self.buffer) - self.pos) if grow else _CHUNK_CHARS
         try:
             chunk = self.file.read(size)
@@ -465,9 +477,19 @@ class _JsonStream:
             self.progress(len(chunk))
 
     def _error(self, message: str, position: int | None = None) -> DataFormatError:
-        position = self.pos if position is None else position
-        line = self.lines + self.buffer.count("\n", 0, position) + 1
-        column = position - self.buffer.rfind("\n", 0, position)
+        """A DataFormatError at a buffer position, with the line and column in the file
+        (counted by reading the file again: errors are rare, reads are hot)."""
+        target = self.offset + (self.pos if position is None else position)
+        line, column, seen = 1, 1, 0
+        with open(self.path, encoding="utf-8-sig", errors="replace") as again:
+            while seen < target:
+                text = again.read(min(_CHUNK_CHARS, target - seen))
+                if not text:
+                    break
+                newlines = text.count("\n")
+                line += newlines
+                column = len(text) - text.rfind("\n") if newlines else column + len(text)
+                seen += len(text)
         return DataFormatError(self.path, f"invalid JSON at line {line}, column {column}: {message}")
 
     def _skip_whitespace(self) -> str:
@@ -534,7 +556,11 @@ class _JsonStream:
         while True:
             if self._skip_whitespace() != '"':
                 raise self._error(f"expected a string key in {where}")
-            key = self.value()
+            simple = _SIMPLE_STRING.match(self.buffer, self.pos)  # most keys: no escapes, no chunk cut
+            if simple is not None:
+                key, self.pos = simple.group(1), simple.end()
+            else:
+                key = self.value()
             self._expect(":", "':' after a key")
             yield key
             if self._expect(",}", f"',' or '}}' in {where}") == "}":

@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from conftest import needs_devkit, reference_script
+from metrics_reference import needs_devkit, reference_script
 from sianms_cli.evaluation import evaluate, load_config, read_results
 
 SUMMARY_KEYS = ("label_aps", "mean_dist_aps", "mean_ap", "label_tp_errors", "tp_errors", "tp_scores", "nd_score")
@@ -126,11 +126,11 @@ def test_paper_config_is_the_devkits_numbers_on_three_classes(devkit_fixture, re
         assert ours["nd_score"] == pytest.approx((5 * ours["mean_ap"] + sum(scores)) / 10, abs=TOLERANCE)
 
 
-@needs_devkit[0]
-@needs_devkit[1]
+@pytest.mark.devkit
+@needs_devkit
 def test_live_devkit_cross_check(reference_folder, our_reports, tmp_path):
     """Rerun the devkit on the rebuilt inputs: the fixture is reproducible, and ours equals it."""
     live = reference_script.run_devkit(reference_folder, tmp_path / "devkit.json", timeout=1800)
-    committed = json.loads((reference_script.FIXTURE).read_text())
+    committed = json.loads(reference_script.FIXTURE.read_text())
     assert live["cases"] == committed["cases"]
     assert _check_against(live, our_reports) >= 1700

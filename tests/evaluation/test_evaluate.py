@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from conftest import reference_script
+from metrics_reference import reference_script
 from sianms_cli.errors import OutputExistsError
 from sianms_cli.evaluation import (
     Results,
@@ -112,3 +112,13 @@ def test_table_lists_every_class_threshold_and_error(reference_folder, reference
     for word in ("region all", "region overlap", "AP@0.5", "AP@4.0", "ATE", "ASE", "AOE", "AVE", "AAE",
                  "traffic_cone", "mAP", "NDS"):
         assert word in text
+
+
+def test_the_configs_box_limit_applies_to_results_read_with_another(reference_folder, reference_db, tmp_path):
+    from sianms_cli.evaluation import DetectionConfig
+
+    results = read_results(reference_folder / "results" / "perturbed_mini_val.json")
+    assert results.validated
+    strict = DetectionConfig.from_dict({"max_boxes_per_sample": 2}, name="strict")
+    with pytest.raises(ResultsFormatError, match="at most 2 per sample"):
+        evaluate(reference_db, "mini_val", results, strict)
