@@ -25,7 +25,8 @@ import numpy as np
 
 from sianms_cli.nuscenes.sensors import write_jpeg, write_pcd_bin
 from sianms_cli.synth.generate import SynthConfig, synthesize
-from sianms_cli.synth.rig import CAMERA_CHANNELS, FULL_IMAGE_SIZE
+from sianms_cli.nuscenes.tables import CAMERA_CHANNELS
+from sianms_cli.synth.rig import FULL_IMAGE_SIZE
 
 
 def _synth_child(out: str, config: SynthConfig, workers: int, queue) -> None:

@@ -30,14 +30,13 @@ from sianms_cli.geometry.boxes import count_points_in_boxes
 from sianms_cli.geometry.quaternion import matrix_to_quat, yaw_to_quat
 from sianms_cli.geometry.transforms import apply_transform, make_transform
 from sianms_cli.nuscenes.splits import splits_for_version
-from sianms_cli.nuscenes.tables import SENSORS
+from sianms_cli.nuscenes.tables import CAMERA_CHANNELS, SENSORS
 from sianms_cli.nuscenes.sensors import write_jpeg, write_pcd_bin
 from sianms_cli.nuscenes.writer import DatasetWriter, attribute_token, category_token, make_token
 from sianms_cli.synth.appearance import camera_style, sample_appearance
 from sianms_cli.synth.camera import render_camera
 from sianms_cli.synth.lidar import scan_lidar
 from sianms_cli.synth.rig import (
-    CAMERA_CHANNELS,
     CAMERA_TRIGGER_OFFSET_US,
     FULL_IMAGE_SIZE,
     LIDAR_CHANNEL,

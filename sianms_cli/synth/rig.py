@@ -14,16 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+
 FULL_IMAGE_SIZE = (1600, 900)
 
-CAMERA_CHANNELS = (
-    "CAM_FRONT",
-    "CAM_FRONT_RIGHT",
-    "CAM_BACK_RIGHT",
-    "CAM_BACK",
-    "CAM_BACK_LEFT",
-    "CAM_FRONT_LEFT",
-)
 LIDAR_CHANNEL = "LIDAR_TOP"
 
 # Camera timestamp minus LiDAR keyframe timestamp, microseconds.
