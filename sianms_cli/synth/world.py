@@ -353,11 +353,11 @@ def _place_parked_vehicles(agents: AgentList, rng, street: Street, busyness: flo
     if not section.parking:
         return
     for side in (+1, -1):
-        offset = side * (section.parking_inner + PARKING_WIDTH / 2)
         position = 0.0
         while position < street.route.length:
             category = _vehicle_category(rng, moving=False)
             size = sample_size(category, rng)
+            size[0] = min(size[0], PARKING_WIDTH)  # what parks in a parking lane fits in it
             position += size[1] / 2
             free = not street.near_intersection(np.array([position]), margin=size[1] / 2 + 8.0)[0]
             free &= not any(lo - size[1] / 2 < position < hi + size[1] / 2 for s, lo, hi in blocked if s == side)
@@ -365,8 +365,9 @@ def _place_parked_vehicles(agents: AgentList, rng, street: Street, busyness: flo
                 # Parked with the flow of their side of the road, a few the other way round.
                 with_flow = -side * section.drive_side
                 direction = with_flow if rng.random() < 0.9 else -with_flow
-                agents.add(category, size, p0=position, offset=offset + side * rng.normal(0.0, 0.12),
-                           direction=direction, yaw_offset=float(rng.normal(0.0, 0.03)), parked=True)
+                # Pulled in to the kerb, so wide vans and trucks stay clear of the bike lane.
+                offset = side * (section.kerb - size[0] / 2 - float(rng.uniform(0.1, 0.3)))
+                agents.add(category, size, p0=position, offset=offset, direction=direction, yaw_offset=float(rng.normal(0.0, 0.03)), parked=True)
             position += size[1] / 2 + 0.8 + float(rng.exponential(4.0))
 
 
@@ -376,17 +377,17 @@ def _place_cyclists(agents: AgentList, rng, street: Street, busyness: float) -> 
         side = -section.drive_side * direction
         offset = side * (section.bike_lane_inner + 0.75)
         speed = float(np.clip(rng.normal(4.0, 1.0), 2.0, 7.0))
-        for position in _fill_line(rng, 0.0, street.route.length, 1000.0 / busyness, float(rng.uniform(0, 400))):
+        for position in _fill_line(rng, 0.0, street.route.length, 2500.0 / busyness, float(rng.uniform(0, 800))):
             category = "vehicle.bicycle" if rng.random() < 0.8 else "vehicle.motorcycle"
             size = sample_size(category, rng)
             size[2] = max(size[2], 1.55)  # the box includes the rider
             agents.add(category, size, p0=position, offset=offset, speed=speed, direction=direction, rider=True)
     # Parked bicycles at the kerb, across the pavement edge.
     for side in (+1, -1):
-        for position in _fill_line(rng, 0.0, street.route.length, 1500.0, float(rng.uniform(0, 600))):
+        for position in _fill_line(rng, 0.0, street.route.length, 3500.0, float(rng.uniform(0, 1200))):
             size = sample_size("vehicle.bicycle", rng)
             size[2] = min(size[2], 1.15)
-            agents.add("vehicle.bicycle", size, p0=position, offset=side * (section.kerb + 0.4),
+            agents.add("vehicle.bicycle", size, p0=position, offset=side * (section.kerb + 0.35),
                        yaw_offset=float(rng.choice([0.0, np.pi]) + rng.normal(0, 0.05)), parked=True)
 
 
@@ -396,17 +397,17 @@ def _place_pedestrians(agents: AgentList, rng, street: Street, busyness: float) 
     section = street.section
     length = street.route.length
     for side in (+1, -1):
-        for k, inset in enumerate((1.4, 2.4, 3.4)):
+        for k, inset in enumerate((1.35, 2.35, 3.35)):
             direction = 1 if (k + (side > 0)) % 2 == 0 else -1
             speed = float(np.clip(rng.normal(1.35, 0.15), 0.9, 1.8))
             offset = side * (section.kerb + inset)
-            for position in _fill_line(rng, 0.0, length, 170.0 / busyness, float(rng.uniform(0, 100))):
+            for position in _fill_line(rng, 0.0, length, 140.0 / busyness, float(rng.uniform(0, 100))):
                 category = "human.pedestrian.child" if rng.random() < 0.03 else "human.pedestrian.adult"
                 agents.add(category, sample_size(category, rng), p0=position, offset=offset,
                            speed=speed, direction=direction)
-        for position in _fill_line(rng, 0.0, length, 220.0 / busyness, float(rng.uniform(0, 100))):
+        for position in _fill_line(rng, 0.0, length, 180.0 / busyness, float(rng.uniform(0, 100))):
             category = "human.pedestrian.adult"
-            offset = side * (section.kerb + PAVEMENT_WIDTH - 0.3 + float(rng.uniform(-0.1, 0.1)))
+            offset = side * (section.kerb + PAVEMENT_WIDTH - 0.2)
             agents.add(category, sample_size(category, rng), p0=position, offset=offset,
                        yaw_offset=float(rng.uniform(-np.pi, np.pi)))
 
@@ -451,9 +452,11 @@ def _place_roadworks(agents: AgentList, rng, street: Street, ego: EgoDrive) -> l
         size = sample_size("movable_object.trafficcone", rng)
         across = inner + 0.35 + (PARKING_WIDTH - 0.7) * (k + 1) / n_cones
         agents.add("movable_object.trafficcone", size, p0=start - 2.5 * (k + 1), offset=side * across)
-    for _ in range(int(rng.integers(0, 3))):
+    n_workers = int(rng.integers(0, 3))
+    for k in range(n_workers):
         category = "human.pedestrian.construction_worker"
-        agents.add(category, sample_size(category, rng), p0=start + float(rng.uniform(2.0, length - 2.0)),
+        spread = start + length * (k + 1) / (n_workers + 1)  # apart, at least 5 m
+        agents.add(category, sample_size(category, rng), p0=spread + float(rng.uniform(-1.0, 1.0)),
                    offset=side * (inner + float(rng.uniform(1.1, 1.8))), yaw_offset=float(rng.uniform(-np.pi, np.pi)))
     return [(side, start - 2.5 * n_cones - 5.0, start + length)]
 
