@@ -19,7 +19,11 @@ def info_cli(
     max_sweeps: int = typer.Option(200, help="LiDAR keyframe files read for the points-per-sweep figure (0: none)."),
     as_json: bool = typer.Option(False, "--json", help="Print the figures as JSON."),
 ) -> None:
-    """Scenes, samples, annotations per class, objects per keyframe, LiDAR points per sweep and
-    the share of car annotations in the camera-overlap region."""
+    """Describe a nuScenes-format dataset: counts, class mix, LiDAR points, overlap share.
+
+    Scenes, samples, annotations per category, objects per keyframe, LiDAR points per
+    annotation and per sweep, visibility and attribute shares, and the share of car
+    annotations in the camera-overlap region.
+    """
     summary = summarize(NuScenesDB(dataroot, version), max_sweeps=max_sweeps)
     typer.echo(json.dumps(summary, indent=2) if as_json else format_summary(summary))

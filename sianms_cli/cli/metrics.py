@@ -26,8 +26,11 @@ def metrics_cli(
     as_json: bool = typer.Option(False, "--json", help="Print the report as JSON instead of the table."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
-    """AP per class at each distance threshold, ATE/ASE/AOE/AVE/AAE, mAP and NDS, computed as
-    nuscenes-devkit 1.2.0 does, for all boxes or only those in a camera-overlap region."""
+    """nuScenes detection metrics of a results file, as the official devkit computes them.
+
+    AP per class at each distance threshold, ATE/ASE/AOE/AVE/AAE, mAP and NDS, for all boxes
+    or only those in a camera-overlap region.
+    """
     regions = [name for name in region.split(",") if name.strip()]
     bar = None
     if not quiet and results.is_file():
