@@ -23,12 +23,14 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 
-from sianms_cli.prepare import PrepareConfig, prepare
+from sianms_cli.prepare.config import PrepareConfig
+from sianms_cli.prepare.job import prepare
 from sianms_cli.synth.generate import SynthConfig, synthesize
 
 CHILD = """
 import resource, sys, json
-from sianms_cli.prepare import PrepareConfig, prepare
+from sianms_cli.prepare.config import PrepareConfig
+from sianms_cli.prepare.job import prepare
 config = PrepareConfig(sys.argv[1], "v1.0-mini", "all", seed=0, fill_missed=True)
 result = prepare(config, sys.argv[2], workers=1, progress=False)
 print(json.dumps({"samples": result.manifest["counts"]["samples"],

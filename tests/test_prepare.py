@@ -13,8 +13,9 @@ from sianms_cli.geometry.frustum import points_in_frustum, rotate_from_frustum
 from sianms_cli.geometry.boxes import points_in_boxes
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.rigs import sample_rigs
-from sianms_cli import prepare as prepare_module
-from sianms_cli.prepare import PrepareConfig, prepare
+from sianms_cli.prepare import sample as prepare_module
+from sianms_cli.prepare.config import PrepareConfig
+from sianms_cli.prepare.job import prepare
 from sianms_cli.synth.generate import SynthConfig, synthesize
 
 
@@ -139,7 +140,7 @@ def test_shards_and_two_workers_give_the_same_files(config, dataroot, tmp_path):
 def test_a_run_killed_half_way_then_rerun_gives_the_same_output(config, dataroot, cache, tmp_path, monkeypatch):
     out = tmp_path / "killed"
     calls = {"n": 0}
-    original = prepare_module._Preparer.sample
+    original = prepare_module.Preparer.sample
 
     def dies_on_the_third_sample(self, *args, **kwargs):
         calls["n"] += 1
@@ -147,12 +148,12 @@ def test_a_run_killed_half_way_then_rerun_gives_the_same_output(config, dataroot
             raise KeyboardInterrupt  # as a kill: nothing cleans up
         return original(self, *args, **kwargs)
 
-    monkeypatch.setattr(prepare_module._Preparer, "sample", dies_on_the_third_sample)
+    monkeypatch.setattr(prepare_module.Preparer, "sample", dies_on_the_third_sample)
     with pytest.raises(KeyboardInterrupt):
         prepare(config, out, progress=False)
     assert not list((out / "detections").glob("*.parquet"))  # only hidden temporary files
     assert list((out / "detections").glob(".*.tmp"))
-    monkeypatch.setattr(prepare_module._Preparer, "sample", original)
+    monkeypatch.setattr(prepare_module.Preparer, "sample", original)
     result = prepare(config, out, progress=False)
     assert result.shards_run == ["scene-0061"]
     assert not list(out.rglob("*.tmp"))

@@ -9,12 +9,15 @@ import typer
 
 from sianms_cli import __version__
 from sianms_cli.errors import SianmsError
+from sianms_cli.io import describe_os_error
+from sianms_cli.processes import Terminated
 
 app = typer.Typer(
     name="sianms",
     help="Multi-camera 3D object detection research on nuScenes-format data.",
     no_args_is_help=True,
     add_completion=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
     pretty_exceptions_enable=False,
 )
 
@@ -35,7 +38,12 @@ def _root(
 
 
 def command(name: str) -> Callable[[Callable], Callable]:
-    """Register a subcommand whose user errors print one line and exit with code 2."""
+    """Register a subcommand whose failures end in one ``error:`` line, never a traceback.
+
+    A user error or an OS error (read-only folder, disk full, a folder where a file should
+    be) exits with code 2; an interrupt with 130 (SIGINT) or 143 (SIGTERM), after the
+    library's cleanup has run.
+    """
 
     def register(function: Callable) -> Callable:
         @functools.wraps(function)
@@ -45,6 +53,14 @@ def command(name: str) -> Callable[[Callable], Callable]:
             except SianmsError as error:
                 typer.echo(f"error: {error}", err=True)
                 raise typer.Exit(error.exit_code) from None
+            except OSError as error:
+                typer.echo(f"error: {describe_os_error(error)}", err=True)
+                raise typer.Exit(2) from None
+            except KeyboardInterrupt as interrupt:
+                terminated = isinstance(interrupt, Terminated)
+                typer.echo(f"interrupted ({'SIGTERM' if terminated else 'SIGINT'}); "
+                           "finished outputs are kept, a rerun resumes or starts afresh", err=True)
+                raise typer.Exit(143 if terminated else 130) from None
 
         return app.command(name)(run)
 

@@ -10,7 +10,8 @@ import typer
 
 from sianms_cli.cli._app import command
 from sianms_cli.nuscenes.classes import PAPER_CLASSES
-from sianms_cli.prepare import PrepareConfig, prepare
+from sianms_cli.prepare.config import PrepareConfig
+from sianms_cli.prepare.job import prepare
 
 
 @command("prepare")

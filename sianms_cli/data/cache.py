@@ -16,7 +16,6 @@ completion record exists. A rerun skips finished shards and rewrites the others;
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 from pathlib import Path
@@ -28,24 +27,10 @@ import pyarrow.parquet as pq
 
 from sianms_cli.data.schemas import DATASETS, SCHEMA_VERSION
 from sianms_cli.errors import DataFormatError
+from sianms_cli.io import sha256_of, write_json
 
 MANIFEST = "manifest.json"
 SHARDS = "_shards"
-
-
-def sha256_of(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
-def write_json_atomic(path: Path, data: Any) -> None:
-    """Write JSON (sorted keys, indented) to a temporary name and rename it into place."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
 
 
 class ShardWriter:
@@ -92,7 +77,7 @@ class ShardWriter:
                 "rows": self.rows[name], "sha256": sha256_of(self._final(name))}
         record = {"shard": self.shard, "files": files, **extra}
         (self.root / SHARDS).mkdir(exist_ok=True)
-        write_json_atomic(self.root / SHARDS / f"{self.shard}.json", record)
+        write_json(self.root / SHARDS / f"{self.shard}.json", record)
         return record
 
     def __enter__(self) -> ShardWriter:
@@ -162,7 +147,7 @@ def write_manifest(root: Path, config: dict[str, Any], expected_shards: list[str
         "counts": {"samples": samples, **totals},
         "files": dict(sorted(files.items())),
     }
-    write_json_atomic(Path(root) / MANIFEST, manifest)
+    write_json(Path(root) / MANIFEST, manifest)
     return manifest
 
 

@@ -26,6 +26,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from sianms_cli.errors import DataFormatError, OutputExistsError
+from sianms_cli.io import check_writable_output, write_text
 from sianms_cli.evaluation.boxes import DETECTION_NAMES, TP_METRICS
 from sianms_cli.evaluation.config import DetectionConfig, load_config
 from sianms_cli.evaluation.dataset import EvalSplit, bicycle_racks, ego_poses, eval_split, ground_truth
@@ -42,7 +43,6 @@ from sianms_cli.evaluation.regions import (
 from sianms_cli.evaluation.results import (
     Results,
     ResultsFormatError,
-    atomic_output,
     check_box_counts,
     read_results,
     validate_results,
@@ -217,12 +217,8 @@ def report_json(report: dict[str, Any]) -> str:
 
 def write_report(path: str | Path, report: dict[str, Any], *, overwrite: bool = False) -> Path:
     """Write the report as strict JSON, atomically; refuses to replace a file unless ``overwrite``."""
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise OutputExistsError(f"{path} exists; pass --overwrite to replace it")
-    with atomic_output(path) as stream:
-        stream.write(report_json(report) + "\n")
-    return path
+    write_text(check_writable_output(path, overwrite=overwrite), report_json(report) + "\n")
+    return Path(path)
 
 
 def _finite_or_none(value: Any) -> Any:

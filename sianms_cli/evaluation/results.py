@@ -36,15 +36,12 @@ the boxes as arrays (about 120 bytes per box), not of the decoded JSON.
 from __future__ import annotations
 
 import json
-import os
 import re
-import tempfile
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from itertools import chain, repeat
 from operator import itemgetter
 from pathlib import Path
-from typing import Any, Callable, Iterator, Sequence, TextIO
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -53,7 +50,8 @@ try:
 except ImportError:  # optional: the json module decodes everything, more slowly
     orjson = None
 
-from sianms_cli.errors import DataFormatError, OutputExistsError
+from sianms_cli.errors import DataFormatError
+from sianms_cli.io import atomic_file, check_writable_output
 from sianms_cli.evaluation.boxes import (
     ATTRIBUTE,
     ATTRIBUTE_NAMES,
@@ -593,9 +591,7 @@ def write_results(path: str | Path, results: Results, *, overwrite: bool = False
     unless ``overwrite``. Floats are written with Python's shortest exact repr; a NaN velocity
     is written as ``NaN`` (as Python's json module and the devkit read and write it).
     """
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise OutputExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
+    path = check_writable_output(path, overwrite=overwrite)
     validate_results(results)
     boxes = results.boxes
     bounds = results.sample_bounds()
@@ -608,7 +604,7 @@ def write_results(path: str | Path, results: Results, *, overwrite: bool = False
         "detection_score": boxes["score"].tolist(),
         "attribute_name": [ATTRIBUTE_NAMES[k] if k >= 0 else "" for k in boxes["attribute"].tolist()],
     }
-    with atomic_output(path) as out:
+    with atomic_file(path, text=True) as out:
         out.write('{"meta": ' + json.dumps(results.meta) + ', "results": {')
         for i, token in enumerate(results.sample_tokens):
             entries = [
@@ -618,29 +614,6 @@ def write_results(path: str | Path, results: Results, *, overwrite: bool = False
             out.write(("" if i == 0 else ", ") + json.dumps(token) + ": " + json.dumps(entries))
         out.write("}}\n")
     return path
-
-
-@contextmanager
-def atomic_output(path: str | Path) -> Iterator[TextIO]:
-    """A text stream whose content appears at ``path`` only when the block completes.
-
-    Writes a temporary file in the same folder (created if needed), gives it the permissions a
-    new file gets (umask), and renames it over ``path``; on any error the temporary file is
-    removed and ``path`` is untouched.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".partial")
-    try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(temp_name, 0o666 & ~umask)
-        with os.fdopen(handle, "w", encoding="utf-8") as stream:
-            yield stream
-        os.replace(temp_name, path)
-    except BaseException:
-        Path(temp_name).unlink(missing_ok=True)
-        raise
 
 
 def results_from_boxes(sample_tokens: Sequence[str], boxes: np.ndarray, meta: dict | None = None,

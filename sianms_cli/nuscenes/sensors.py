@@ -2,21 +2,20 @@
 
 A LIDAR_TOP sweep is a headerless little-endian float32 file of 5 values per point, row-major:
 x, y, z (metres, LIDAR_TOP sensor frame), intensity, ring index. Camera images are JPEG, RGB.
-Every writer here goes through a temporary file in the destination folder and ``os.replace``,
-so an interrupted write never leaves a file that looks complete.
+Every writer here goes through :func:`sianms_cli.io.write_bytes` (atomic, umask permissions).
 """
 
 from __future__ import annotations
 
 import io
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 from PIL import Image
 
 from sianms_cli.errors import DataFormatError
+from sianms_cli.io import write_bytes
 
 PCD_BIN_VALUES_PER_POINT = 5
 _PCD_BIN_POINT_BYTES = 4 * PCD_BIN_VALUES_PER_POINT
@@ -57,25 +56,6 @@ def resolve_data_path(
     return resolved
 
 
-def write_bytes_atomic(path: str | Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same folder and a rename.
-
-    Creates the parent folders. A reader never sees a partly written ``path``.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temp_name = tempfile.mkstemp(
-        dir=path.parent, prefix=f".{path.name}.", suffix=".partial"
-    )
-    try:
-        with os.fdopen(handle, "wb") as temp:
-            temp.write(data)
-        os.replace(temp_name, path)
-    except BaseException:
-        Path(temp_name).unlink(missing_ok=True)
-        raise
-
-
 def read_pcd_bin(path: str | Path, token: str | None = None) -> np.ndarray:
     """Read a LIDAR ``.pcd.bin`` sweep as an (N, 5) float32 array, sensor frame.
 
@@ -114,7 +94,7 @@ def write_pcd_bin(path: str | Path, points: np.ndarray) -> None:
         raise ValueError(f"lidar points must have shape (N, 5), got {points.shape}")
     if not (np.issubdtype(points.dtype, np.floating) or np.issubdtype(points.dtype, np.integer)):
         raise ValueError(f"lidar points must be numeric, got dtype {points.dtype}")
-    write_bytes_atomic(path, np.ascontiguousarray(points, dtype="<f4").tobytes())
+    write_bytes(path, np.ascontiguousarray(points, dtype="<f4").tobytes())
 
 
 def read_image(path: str | Path, token: str | None = None) -> np.ndarray:
@@ -152,4 +132,4 @@ def write_jpeg(path: str | Path, image: np.ndarray, quality: int = 90) -> None:
         raise ValueError(f"JPEG quality must be in 1..95, got {quality}")
     buffer = io.BytesIO()
     Image.fromarray(np.ascontiguousarray(image)).save(buffer, format="JPEG", quality=quality)
-    write_bytes_atomic(path, buffer.getvalue())
+    write_bytes(path, buffer.getvalue())

@@ -20,7 +20,7 @@ import numpy as np
 from PIL import Image
 
 from sianms_cli.errors import OutputExistsError
-from sianms_cli.nuscenes.sensors import write_bytes_atomic
+from sianms_cli.io import write_bytes
 from sianms_cli.nuscenes.tables import (
     ATTRIBUTES,
     CATEGORIES,
@@ -205,7 +205,7 @@ class DatasetWriter:
         record = {"category": category, "token": token, "filename": filename,
                   "log_tokens": list(log_tokens)}
         checked_record("map", record)
-        write_bytes_atomic(self.dataroot / filename, _map_raster_png())
+        write_bytes(self.dataroot / filename, _map_raster_png())
         self.add("map", record)
 
     def write_splits(self, splits: Mapping[str, Sequence[str]]) -> None:
@@ -222,7 +222,7 @@ class DatasetWriter:
                 raise ValueError(f"splits: {name!r} must map a name to a list of scene names")
             plain[name] = scenes
         text = json.dumps(plain, indent=2) + "\n"
-        write_bytes_atomic(self.table_root / "splits.json", text.encode("utf-8"))
+        write_bytes(self.table_root / "splits.json", text.encode("utf-8"))
 
     def close(self) -> None:
         """Finish every table (an empty one is written as ``[]``) and rename it into place."""

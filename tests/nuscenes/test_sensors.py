@@ -10,7 +10,6 @@ from sianms_cli.nuscenes.sensors import (
     read_image,
     read_pcd_bin,
     resolve_data_path,
-    write_bytes_atomic,
     write_jpeg,
     write_pcd_bin,
 )
@@ -135,11 +134,3 @@ def test_write_jpeg_refuses_bad_input(tmp_path, image, quality):
     with pytest.raises(ValueError):
         write_jpeg(tmp_path / "x.jpg", image, quality=quality)
     assert list(tmp_path.iterdir()) == []
-
-
-def test_write_bytes_atomic_replaces_and_leaves_no_temporary(tmp_path):
-    path = tmp_path / "deep" / "file.bin"
-    write_bytes_atomic(path, b"one")
-    write_bytes_atomic(path, b"two")
-    assert path.read_bytes() == b"two"
-    assert [p.name for p in path.parent.iterdir()] == ["file.bin"]

@@ -1,148 +1,35 @@
-"""`sianms prepare`: the paper's offline step (§III-A, §IV-B) as a streaming, sharded, resumable job.
-
-For every key frame of a split and every camera: 2D detections (simulated or from a file),
-their association with the projected ground truth (+ the projected ground truth of missed
-objects on training splits), ROI features from a backbone's stride-16 map, and the LiDAR
-frustum of each detection; then the pairs of detections of one instance in two contiguous
-cameras. Written under ``out`` as three Parquet datasets, one file per scene (the shard),
-and a manifest (see :mod:`sianms_cli.data.cache`).
-
-This module sits above ``detection2d/`` and ``data/`` and below ``cli/``: it is the
-orchestration only. It lives at the package top rather than in ``pipelines/``, which DESIGN.md
-gives to evaluation-time duplicate handling.
-
-Determinism: every random draw comes from a generator seeded with (seed, sample_data token),
-so the bytes written depend neither on ``workers`` nor on ``shard``, nor on whether the run
-was interrupted and resumed.
-"""
+"""One key frame of `sianms prepare`: detections, ROI features, frustums and pairs as Parquet tables."""
 
 from __future__ import annotations
 
-import multiprocessing
-import shutil
 import zlib
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 import pyarrow as pa
 import torch
 
-from sianms_cli.data.cache import (
-    MANIFEST, SHARDS, ShardWriter, clear_shard, read_manifest, shard_done, sha256_of, write_manifest,
-)
+from sianms_cli.data.cache import ShardWriter, clear_shard
 from sianms_cli.data.frustums import extract_frustum
 from sianms_cli.data.pairs import contiguous_pairs
-from sianms_cli.data.schemas import DATASETS, FRUSTUMS_SCHEMA, PAIRS_SCHEMA, detections_schema, with_metadata
+from sianms_cli.data.schemas import FRUSTUMS_SCHEMA, PAIRS_SCHEMA, detections_schema, with_metadata
 from sianms_cli.detection2d.association import associate
-from sianms_cli.detection2d.backbones import BACKBONES, STRIDE, build_backbone
-from sianms_cli.detection2d.classes import check_classes, detection_classes_of
-from sianms_cli.nuscenes.classes import PAPER_CLASSES
+from sianms_cli.detection2d.backbones import STRIDE, build_backbone
+from sianms_cli.detection2d.classes import detection_classes_of
 from sianms_cli.detection2d.detections import Detections2D
 from sianms_cli.detection2d.external import ExternalDetections
 from sianms_cli.detection2d.ground_truth import camera_ground_truth
 from sianms_cli.detection2d.roi_align import roi_align
 from sianms_cli.detection2d.simulated import SimulatedDetectorConfig, simulate_detections
-from sianms_cli.errors import OutputExistsError, SianmsError
 from sianms_cli.geometry.transforms import apply_transform, global_to_sensor, sensor_to_global, transform_boxes
 from sianms_cli.geometry.transforms import invert_transform, make_transform
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.rigs import sample_rigs
-from sianms_cli.nuscenes.splits import split_scene_names
+from sianms_cli.prepare.config import PrepareConfig
 
 
-@dataclass(frozen=True)
-class PrepareConfig:
-    """What `sianms prepare` computes. Only these fields affect the bytes written."""
-
-    dataroot: str
-    version: str
-    split: str
-    detector: str = "simulated"  # "simulated" or "file:PATH" (.parquet or .json)
-    backbone: str = "tiny"  # "tiny" or "resnet50-c4"
-    weights: str | None = None  # local checkpoint for resnet50-c4
-    classes: tuple[str, ...] = PAPER_CLASSES
-    seed: int = 0
-    iou_threshold: float = 0.5  # association with the projected ground truth
-    fill_missed: bool | None = None  # None: on for training splits (name contains "train")
-    roi_size: int = 7
-    sampling_ratio: int = 0  # <= 0: adaptive, as detectron2's C4 head
-    sweeps: int = 0  # earlier LiDAR sweeps added to each key frame's points
-    min_depth: float = 1.0  # frustum depth window, metres
-    max_depth: float | None = None
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "classes", check_classes(self.classes))
-        if not (self.detector == "simulated" or self.detector.startswith("file:")):
-            raise SianmsError(f"unknown detector '{self.detector}'; expected 'simulated' or 'file:PATH'")
-        if self.backbone not in BACKBONES:
-            raise SianmsError(f"unknown backbone '{self.backbone}'; expected one of {', '.join(BACKBONES)}")
-        if self.roi_size < 1:
-            raise SianmsError(f"--roi-size must be at least 1, got {self.roi_size}")
-        if self.sweeps < 0:
-            raise SianmsError(f"--sweeps must be >= 0, got {self.sweeps}")
-        if not 0 < self.iou_threshold <= 1:
-            raise SianmsError(f"--iou-threshold must be in (0, 1], got {self.iou_threshold}")
-
-    @property
-    def fills_missed(self) -> bool:
-        return ("train" in self.split) if self.fill_missed is None else self.fill_missed
-
-    def resolved(self) -> dict[str, Any]:
-        """The config as written to the manifest: derived values filled in, files fingerprinted."""
-        data = asdict(self)
-        data["classes"] = list(self.classes)
-        data["fill_missed"] = self.fills_missed
-        data["dataroot"] = str(Path(self.dataroot).resolve())
-        if self.detector.startswith("file:"):
-            path = Path(self.detector[5:])
-            data["detector_sha256"] = sha256_of(path) if path.is_file() else None
-        if self.weights is not None and Path(self.weights).is_file():
-            data["weights_sha256"] = sha256_of(Path(self.weights))
-        return data
-
-
-@dataclass
-class PrepareResult:
-    out: Path
-    manifest: dict[str, Any]
-    shards_run: list[str] = field(default_factory=list)
-    shards_skipped: list[str] = field(default_factory=list)
-
-
-def parse_shard(text: str | None) -> tuple[int, int]:
-    """'K/N' -> (K, N) with 0 <= K < N; None -> (0, 1)."""
-    if text is None:
-        return 0, 1
-    try:
-        k, n = (int(part) for part in text.split("/"))
-    except ValueError:
-        raise SianmsError(f"--shard must look like K/N (e.g. 0/4), got '{text}'") from None
-    if not (n >= 1 and 0 <= k < n):
-        raise SianmsError(f"--shard K/N needs 0 <= K < N, got '{text}'")
-    return k, n
-
-
-def split_scenes(db: NuScenesDB, split: str) -> list[tuple[str, str]]:
-    """(scene token, shard name) of the split's scenes, in scene-table order.
-
-    The shard name is the scene name, or the scene token when names repeat.
-    """
-    names = set(split_scene_names(split, db.version, db.dataroot))
-    scenes = db.table("scene")
-    all_names = scenes.column("name").tolist()
-    unique = len(set(all_names)) == len(all_names)
-    chosen = [(tok, name if unique else tok) for tok, name in zip(scenes.tokens.tolist(), all_names) if name in names]
-    if not chosen:
-        raise SianmsError(f"split '{split}' has no scene in {db.table_root}")
-    return chosen
-
-
-# ------------------------------------------------------------------------------ per sample
-
-
-class _Preparer:
+class Preparer:
     """The loaded state one process needs: dataset, detector, backbone."""
 
     def __init__(self, config: PrepareConfig, db: NuScenesDB | None = None) -> None:
@@ -346,102 +233,3 @@ class _Preparer:
                 if on_sample is not None:
                     on_sample()
             return writer.commit({"scene_token": scene_token, "scene_name": scene_name, "samples": len(samples)})
-
-
-# ------------------------------------------------------------------------------ workers
-
-_WORKER: _Preparer | None = None
-
-
-def _init_worker(config: PrepareConfig) -> None:
-    global _WORKER
-    torch.set_num_threads(1)
-    _WORKER = _Preparer(config)
-
-
-def _run_in_worker(args: tuple[str, str, str]) -> tuple[str, int]:
-    out, scene_token, shard = args
-    assert _WORKER is not None
-    record = _WORKER.scene(Path(out), scene_token, shard)
-    return shard, record["samples"]
-
-
-# ------------------------------------------------------------------------------ entry point
-
-
-def prepare(
-    config: PrepareConfig,
-    out: str | Path,
-    workers: int = 1,
-    shard: str | None = None,
-    overwrite: bool = False,
-    progress: bool = True,
-) -> PrepareResult:
-    """Prepare the cache for ``config`` under ``out`` (see the module docstring).
-
-    A cache that holds finished shards of the same resolved config is resumed: finished shards
-    are skipped, unfinished ones rewritten. A cache made with another config is refused unless
-    ``overwrite``; so is a non-empty folder that is not a cache.
-
-    Args:
-        config: what to compute.
-        out: cache folder.
-        workers: processes (the output does not depend on it).
-        shard: "K/N": this run does the scenes whose position in the split is K mod N.
-        overwrite: delete an existing cache first.
-        progress: show a tqdm bar over samples.
-    """
-    k, n = parse_shard(shard)
-    if workers < 1:
-        raise SianmsError(f"--workers must be at least 1, got {workers}")
-    out = Path(out)
-    resolved = config.resolved()
-    db = NuScenesDB(config.dataroot, config.version)
-    scenes = split_scenes(db, config.split)
-    preparer = _Preparer(config, db)  # validates detector file and weights before anything is written
-    _claim_output(out, resolved, overwrite)
-    expected = [name for _, name in scenes]
-    mine = [(token, name) for i, (token, name) in enumerate(scenes) if i % n == k]
-    todo = [(token, name) for token, name in mine if not shard_done(out, name)]
-    skipped = [name for token, name in mine if shard_done(out, name)]
-    total = sum(len(db.sample_tokens_of_scene(token)) for token, _ in todo)
-    from tqdm import tqdm
-
-    with tqdm(total=total, unit="sample", disable=not progress, desc="prepare") as bar:
-        if workers == 1 or len(todo) <= 1:
-            for token, name in todo:
-                preparer.scene(out, token, name, on_sample=lambda: bar.update(1))
-        else:
-            del preparer
-            context = multiprocessing.get_context("spawn")
-            with context.Pool(min(workers, len(todo)), initializer=_init_worker, initargs=(config,)) as pool:
-                for _, samples in pool.imap_unordered(_run_in_worker, [(str(out), t, s) for t, s in todo]):
-                    bar.update(samples)
-    manifest = write_manifest(out, resolved, expected)
-    return PrepareResult(out, manifest, [name for _, name in todo], skipped)
-
-
-def _claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> None:
-    """Create ``out`` or check it is this config's cache; write the manifest with the config."""
-    manifest = read_manifest(out) if out.is_dir() else None
-    if out.exists() and not out.is_dir():
-        raise OutputExistsError(f"{out} exists and is not a folder")
-    if overwrite and out.is_dir():
-        if manifest is None and any(out.iterdir()):
-            raise OutputExistsError(f"{out} is not a sianms cache (no {MANIFEST}); refusing to delete it")
-        for name in (*DATASETS, SHARDS):
-            shutil.rmtree(out / name, ignore_errors=True)
-        (out / MANIFEST).unlink(missing_ok=True)
-        manifest = None
-    if manifest is not None:
-        if manifest.get("config") != resolved:
-            differing = sorted(key for key in set(resolved) | set(manifest.get("config", {}))
-                               if resolved.get(key) != manifest.get("config", {}).get(key))
-            raise OutputExistsError(
-                f"{out} holds a cache prepared with another config (differs in: {', '.join(differing)}); "
-                "pass --overwrite or choose another --out")
-        return
-    if out.is_dir() and any(out.iterdir()):
-        raise OutputExistsError(f"{out} exists and is not empty; pass --overwrite or choose another --out")
-    out.mkdir(parents=True, exist_ok=True)
-    write_manifest(out, resolved, [])

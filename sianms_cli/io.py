@@ -1,0 +1,257 @@
+"""The bottom floor: every file and folder sianms writes, and every JSON file it reads.
+
+Writes are atomic: the content goes to a hidden temporary name in the destination folder
+(``.<name>.<pid>.<random>.partial``) and is renamed over the destination only when complete,
+so a killed run never leaves a file that looks finished. New files and folders get the
+permissions the user's umask gives (``open``/``mkdir`` with 0o666/0o777), never the 0o600 of
+``mkstemp``: on a shared cluster a colleague can read what a run wrote.
+
+An OS failure while writing (read-only folder, disk full, a folder where a file should be)
+becomes one :class:`OutputError` naming the path and the cause; the temporary file is
+removed and the destination is untouched.
+"""
+
+from __future__ import annotations
+
+import errno
+import fcntl
+import hashlib
+import json
+import os
+import secrets
+import shutil
+from contextlib import contextmanager
+from pathlib import Path
+from typing import IO, Any, Iterator
+
+import orjson
+
+from sianms_cli.errors import DataFormatError, SianmsError
+
+PARTIAL_SUFFIX = ".partial"
+
+
+class OutputError(SianmsError):
+    """An output could not be written (the OS said why)."""
+
+
+def describe_os_error(error: OSError, path: str | Path | None = None) -> str:
+    """``<path>: <cause>`` for an OSError, the path taken from the error when not given."""
+    where = path if path is not None else error.filename
+    cause = error.strerror or str(error) or type(error).__name__
+    return f"{where}: {cause}" if where is not None else cause
+
+
+@contextmanager
+def os_errors_as_output_errors(path: str | Path) -> Iterator[None]:
+    """Turn an OSError raised in the block into an :class:`OutputError` naming ``path``."""
+    try:
+        yield
+    except OSError as error:
+        raise OutputError(f"cannot write {describe_os_error(error, path)}") from None
+
+
+def partial_name(path: Path) -> Path:
+    """A hidden, unique temporary name beside ``path``."""
+    return path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}{PARTIAL_SUFFIX}")
+
+
+def make_folder(path: str | Path) -> Path:
+    """Create ``path`` and its parents as the umask allows; an existing folder is fine."""
+    path = Path(path)
+    with os_errors_as_output_errors(path):
+        path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+@contextmanager
+def atomic_file(path: str | Path, *, text: bool = False) -> Iterator[IO]:
+    """A stream whose content appears at ``path`` only when the block completes.
+
+    The parent folder is created if needed. On any error (or interrupt) the temporary file
+    is removed and ``path`` is left as it was.
+    """
+    path = Path(path)
+    make_folder(path.parent)
+    if path.is_dir():
+        raise OutputError(f"cannot write {path}: it is a folder")
+    temporary = partial_name(path)
+    try:
+        with os_errors_as_output_errors(path):
+            descriptor = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+            with (open(descriptor, "w", encoding="utf-8", newline="\n") if text
+                  else open(descriptor, "wb")) as stream:
+                yield stream
+            os.replace(temporary, path)
+    except BaseException:
+        temporary.unlink(missing_ok=True)
+        raise
+
+
+def write_bytes(path: str | Path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (see :func:`atomic_file`)."""
+    with atomic_file(path) as stream:
+        stream.write(data)
+    return Path(path)
+
+
+def write_text(path: str | Path, text: str) -> Path:
+    """Write UTF-8 ``text`` to ``path`` atomically."""
+    return write_bytes(path, text.encode("utf-8"))
+
+
+def write_json(path: str | Path, data: Any) -> Path:
+    """Write ``data`` as indented JSON with sorted keys (diff-friendly, reproducible)."""
+    return write_text(path, json.dumps(data, indent=2, sort_keys=True) + "\n")
+
+
+def check_writable_output(path: str | Path, *, overwrite: bool) -> Path:
+    """Refuse an output file that is a folder, or that exists while ``overwrite`` is false."""
+    from sianms_cli.errors import OutputExistsError
+
+    path = Path(path)
+    if path.is_dir():
+        raise OutputError(f"cannot write {path}: it is a folder")
+    if path.exists() and not overwrite:
+        raise OutputExistsError(f"{path} exists; pass --overwrite to replace it")
+    return path
+
+
+def read_json(path: str | Path) -> Any:
+    """The JSON document at ``path``.
+
+    A missing or unreadable file, invalid UTF-8 or invalid JSON raises one DataFormatError
+    naming the file (with the line and column of a syntax error).
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise DataFormatError(path, "file not found") from None
+    except OSError as error:
+        raise DataFormatError(path, f"cannot read: {error.strerror or error}") from None
+    return decode_json(path, data)
+
+
+def decode_json(path: str | Path, data: bytes) -> Any:
+    """``data`` decoded as JSON; errors name ``path`` with the line and column."""
+    try:
+        return orjson.loads(data)
+    except orjson.JSONDecodeError:
+        pass
+    # orjson does not report line and column; the json module does, on the same error.
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as error:
+        raise DataFormatError(path, f"not valid UTF-8 at byte {error.start}") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as error:
+        raise DataFormatError(path, f"invalid JSON at line {error.lineno}, column {error.colno}: {error.msg}") from None
+
+
+def sha256_of(path: str | Path) -> str:
+    """Hex SHA-256 of a file's bytes."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+# --------------------------------------------------------------------------- folders
+
+
+def staging_folder(destination: str | Path) -> Path:
+    """A new, hidden, empty folder beside ``destination`` to build it in (umask permissions)."""
+    destination = Path(os.path.abspath(destination))
+    make_folder(destination.parent)
+    staging = destination.with_name(f".{destination.name}.{os.getpid()}.{secrets.token_hex(4)}{PARTIAL_SUFFIX}")
+    with os_errors_as_output_errors(staging):
+        staging.mkdir(mode=0o777)
+    return staging
+
+
+def publish_folder(staging: Path, destination: str | Path) -> Path:
+    """Move a finished ``staging`` folder to ``destination``, replacing what is there.
+
+    The caller has checked that ``destination`` may be replaced. The old folder is first
+    renamed aside (one atomic step each way), then deleted.
+    """
+    destination = Path(os.path.abspath(destination))
+    with os_errors_as_output_errors(destination):
+        if not destination.exists():
+            os.replace(staging, destination)
+            return destination
+        aside = destination.with_name(f".{destination.name}.{os.getpid()}.{secrets.token_hex(4)}.replaced")
+        os.replace(destination, aside)
+        os.replace(staging, destination)
+    shutil.rmtree(aside, ignore_errors=True)
+    return destination
+
+
+def remove_folder(path: Path) -> None:
+    """Delete a folder this run created (a staging folder); missing is fine."""
+    shutil.rmtree(path, ignore_errors=True)
+
+
+def is_inside_working_folder(path: str | Path) -> bool:
+    """Whether ``path`` is the current folder or one of its parents (never replace those)."""
+    target = Path(os.path.abspath(path))
+    here = Path.cwd()
+    return target == here or target in here.parents
+
+
+# --------------------------------------------------------------------------- locks
+
+
+class FolderBusyError(SianmsError):
+    """Another process holds the lock this run needs."""
+
+
+@contextmanager
+def exclusive_lock(lock_path: str | Path, *, what: str, blocking: bool = False) -> Iterator[None]:
+    """Hold an advisory lock (``flock``) on ``lock_path`` for the block.
+
+    Held by a process, released by the OS when the process ends however it ends, so a killed
+    run never leaves a stale lock. With ``blocking`` false a held lock raises
+    :class:`FolderBusyError` naming ``what`` and the holder's pid.
+    """
+    lock_path = Path(lock_path)
+    make_folder(lock_path.parent)
+    with os_errors_as_output_errors(lock_path):
+        descriptor = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
+        except OSError as error:
+            if error.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                raise OutputError(f"cannot lock {describe_os_error(error, lock_path)}") from None
+            holder = os.pread(descriptor, 32, 0).decode(errors="replace").strip() or "unknown"
+            raise FolderBusyError(f"{what} is in use by another sianms process (pid {holder})") from None
+        os.ftruncate(descriptor, 0)
+        os.pwrite(descriptor, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(descriptor)
+
+
+def try_lock(lock_path: str | Path) -> int | None:
+    """Take a non-blocking ``flock`` on ``lock_path``: its descriptor, or None when held.
+
+    Release with :func:`release_lock`. For work items several runs share (cache shards).
+    """
+    lock_path = Path(lock_path)
+    make_folder(lock_path.parent)
+    with os_errors_as_output_errors(lock_path):
+        descriptor = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(descriptor)
+        return None
+    return descriptor
+
+
+def release_lock(descriptor: int) -> None:
+    os.close(descriptor)

@@ -1,0 +1,156 @@
+"""The bottom floor: atomic writes, umask permissions, OS errors, JSON reading, locks."""
+
+import errno
+import os
+import stat
+
+import pytest
+
+from sianms_cli import io
+from sianms_cli.errors import DataFormatError, OutputExistsError
+
+
+@pytest.fixture
+def umask():
+    """Set the process umask for one test, restored afterwards."""
+    previous = os.umask(0o022)
+    yield lambda value: os.umask(value)
+    os.umask(previous)
+
+
+def mode(path):
+    return stat.S_IMODE(os.stat(path).st_mode)
+
+
+def test_write_bytes_replaces_and_leaves_no_temporary(tmp_path):
+    path = tmp_path / "deep" / "file.bin"
+    io.write_bytes(path, b"one")
+    io.write_bytes(path, b"two")
+    assert path.read_bytes() == b"two"
+    assert [p.name for p in path.parent.iterdir()] == ["file.bin"]
+
+
+@pytest.mark.parametrize("mask, file_mode, folder_mode", [(0o022, 0o644, 0o755), (0o077, 0o600, 0o700),
+                                                          (0o002, 0o664, 0o775)])
+def test_files_and_folders_get_the_umask_permissions(tmp_path, umask, mask, file_mode, folder_mode):
+    umask(mask)
+    io.write_json(tmp_path / "a" / "x.json", {"b": 1})
+    with io.atomic_file(tmp_path / "a" / "y.txt", text=True) as stream:
+        stream.write("text")
+    staging = io.staging_folder(tmp_path / "out")
+    assert mode(tmp_path / "a" / "x.json") == file_mode
+    assert mode(tmp_path / "a" / "y.txt") == file_mode
+    assert mode(tmp_path / "a") == folder_mode
+    assert mode(staging) == folder_mode
+
+
+def test_write_json_is_sorted_and_indented(tmp_path):
+    io.write_json(tmp_path / "x.json", {"b": 1, "a": [1, 2]})
+    assert (tmp_path / "x.json").read_text() == '{\n  "a": [\n    1,\n    2\n  ],\n  "b": 1\n}\n'
+
+
+def test_an_error_inside_the_block_leaves_the_destination_untouched(tmp_path):
+    path = tmp_path / "x.txt"
+    path.write_text("old")
+    with pytest.raises(RuntimeError):
+        with io.atomic_file(path, text=True) as stream:
+            stream.write("new")
+            raise RuntimeError("boom")
+    assert path.read_text() == "old"
+    assert [p.name for p in tmp_path.iterdir()] == ["x.txt"]
+
+
+def test_disk_full_is_one_output_error_naming_the_path(tmp_path, monkeypatch):
+    real_open = open
+
+    class FullDisk:
+        def __init__(self, handle):
+            self.handle = handle
+
+        def write(self, data):
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.handle.close()
+
+    monkeypatch.setattr("builtins.open", lambda *a, **k: FullDisk(real_open(*a, **k)))
+    with pytest.raises(io.OutputError, match=r"cannot write .*x\.bin: No space left on device"):
+        io.write_bytes(tmp_path / "x.bin", b"data")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_read_only_folder_is_one_output_error_naming_the_path(tmp_path, monkeypatch):
+    def refuse(*args, **kwargs):  # what open() says in a read-only folder (root ignores chmod)
+        raise OSError(errno.EROFS, "Read-only file system", str(args[0]))
+
+    monkeypatch.setattr(io.os, "open", refuse)
+    with pytest.raises(io.OutputError, match=r"cannot write \S*/x\.bin: Read-only file system"):
+        io.write_bytes(tmp_path / "x.bin", b"data")
+
+
+def test_a_folder_where_a_file_should_be(tmp_path):
+    (tmp_path / "x.json").mkdir()
+    with pytest.raises(io.OutputError, match="x.json: it is a folder"):
+        io.write_json(tmp_path / "x.json", {})
+    with pytest.raises(io.OutputError, match="it is a folder"):
+        io.check_writable_output(tmp_path / "x.json", overwrite=True)
+
+
+def test_check_writable_output_refuses_existing_file_without_overwrite(tmp_path):
+    path = tmp_path / "x.json"
+    path.write_text("{}")
+    with pytest.raises(OutputExistsError, match="--overwrite"):
+        io.check_writable_output(path, overwrite=False)
+    assert io.check_writable_output(path, overwrite=True) == path
+
+
+def test_read_json_names_file_line_and_column(tmp_path):
+    path = tmp_path / "bad.json"
+    path.write_text('{\n  "a": 1,\n  "b": }\n')
+    with pytest.raises(DataFormatError, match=r"bad\.json: invalid JSON at line 3, column 8"):
+        io.read_json(path)
+    with pytest.raises(DataFormatError, match="missing.json: file not found"):
+        io.read_json(tmp_path / "missing.json")
+    (tmp_path / "latin.json").write_bytes(b'"\xe9"')
+    with pytest.raises(DataFormatError, match="not valid UTF-8 at byte 1"):
+        io.read_json(tmp_path / "latin.json")
+
+
+def test_publish_folder_replaces_and_leaves_nothing_aside(tmp_path):
+    destination = tmp_path / "data"
+    destination.mkdir()
+    (destination / "old.txt").write_text("old")
+    staging = io.staging_folder(destination)
+    (staging / "new.txt").write_text("new")
+    io.publish_folder(staging, destination)
+    assert [p.name for p in destination.iterdir()] == ["new.txt"]
+    assert [p.name for p in tmp_path.iterdir()] == ["data"]
+
+
+def test_working_folder_and_its_parents_are_recognised(tmp_path, monkeypatch):
+    (tmp_path / "a" / "b").mkdir(parents=True)
+    monkeypatch.chdir(tmp_path / "a" / "b")
+    assert io.is_inside_working_folder(".")
+    assert io.is_inside_working_folder("..")
+    assert not io.is_inside_working_folder("c")
+
+
+def test_exclusive_lock_refuses_a_second_holder_and_names_the_first(tmp_path):
+    lock = tmp_path / ".lock"
+    with io.exclusive_lock(lock, what="the cache"):
+        held = io.try_lock(lock)
+        assert held is None
+        with pytest.raises(io.FolderBusyError, match=rf"the cache is in use by another sianms process \(pid {os.getpid()}\)"):
+            with io.exclusive_lock(lock, what="the cache"):
+                pass
+    descriptor = io.try_lock(lock)
+    assert descriptor is not None
+    io.release_lock(descriptor)
+
+
+def test_sha256_of(tmp_path):
+    (tmp_path / "x").write_bytes(b"abc")
+    assert io.sha256_of(tmp_path / "x") == "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
