@@ -37,6 +37,38 @@ def _root(
     """Multi-camera 3D object detection research on nuScenes-format data."""
 
 
+class ProgressBar:
+    """A tqdm bar behind the library's :class:`~sianms_cli.progress.Progress`; nothing when quiet.
+
+    Use as a context manager so the bar is closed however the command ends.
+    """
+
+    def __init__(self, quiet: bool) -> None:
+        self.quiet = quiet
+        self.bar = None
+
+    def start(self, total: float, unit: str, description: str) -> None:
+        if self.quiet:
+            return
+        from tqdm import tqdm
+
+        if self.bar is not None:
+            self.bar.close()
+        scale = unit == "B"
+        self.bar = tqdm(total=total, unit=unit, unit_scale=scale, desc=description, leave=False)
+
+    def advance(self, amount: float = 1) -> None:
+        if self.bar is not None:
+            self.bar.update(amount)
+
+    def __enter__(self) -> ProgressBar:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
 def command(name: str) -> Callable[[Callable], Callable]:
     """Register a subcommand whose failures end in one ``error:`` line, never a traceback.
 

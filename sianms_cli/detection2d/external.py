@@ -25,7 +25,8 @@ import pyarrow.parquet as pq
 from sianms_cli.nuscenes.classes import DETECTION_CLASSES
 from sianms_cli.detection2d.detections import Detections2D
 from sianms_cli.errors import DataFormatError
-from sianms_cli.nuscenes.loader import NuScenesDB, read_json
+from sianms_cli.io import read_json
+from sianms_cli.nuscenes.loader import NuScenesDB
 
 FIELDS = ("sample_data_token", "x1", "y1", "x2", "y2", "score", "class")
 

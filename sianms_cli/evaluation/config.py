@@ -29,7 +29,7 @@ import numpy as np
 from sianms_cli.errors import DataFormatError, SianmsError
 from sianms_cli.evaluation.boxes import DETECTION_NAMES, LABEL
 from sianms_cli.nuscenes.classes import PAPER_CLASSES
-from sianms_cli.nuscenes.loader import read_json
+from sianms_cli.io import read_json
 
 DETECTION_CVPR_2019: dict[str, Any] = {
     "class_range": {

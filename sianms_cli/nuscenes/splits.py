@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from sianms_cli.errors import DataFormatError, SianmsError
-from sianms_cli.nuscenes.loader import read_json
+from sianms_cli.io import read_json
 
 if TYPE_CHECKING:
     from sianms_cli.nuscenes.loader import NuScenesDB

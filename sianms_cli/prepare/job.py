@@ -22,14 +22,17 @@ import multiprocessing
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import torch
 
-from sianms_cli.data.cache import MANIFEST, SHARDS, read_manifest, shard_done, write_manifest
+from sianms_cli.data.cache import (
+    MANIFEST, SHARDS, ShardWriter, clear_shard, read_manifest, shard_done, write_manifest,
+)
 from sianms_cli.data.schemas import DATASETS
 from sianms_cli.errors import OutputExistsError, SianmsError
 from sianms_cli.nuscenes.loader import NuScenesDB
+from sianms_cli.nuscenes.rigs import sample_rigs
 from sianms_cli.nuscenes.splits import split_scene_names
 from sianms_cli.prepare.config import PrepareConfig
 from sianms_cli.prepare.sample import Preparer
@@ -71,6 +74,27 @@ def split_scenes(db: NuScenesDB, split: str) -> list[tuple[str, str]]:
     return chosen
 
 
+# ------------------------------------------------------------------------------ one shard
+
+
+def write_scene_shard(preparer: Preparer, out: Path, scene_token: str, shard: str,
+                      on_sample: Callable[[], None] | None = None) -> dict:
+    """Write one scene's shard; return its completion record."""
+    db = preparer.db
+    clear_shard(out, shard)
+    samples = db.sample_tokens_of_scene(scene_token)
+    scene_name = str(db.table("scene").column("name")[db.table("scene").index(scene_token)])
+    rigs, which = sample_rigs(db, samples)
+    with ShardWriter(out, shard, preparer.schemas) as writer:
+        for sample_token, rig_index in zip(samples, which.tolist()):
+            if rig_index >= 0:
+                for name, table in preparer.sample(scene_token, scene_name, sample_token, rigs[rig_index]).items():
+                    writer.write(name, table)
+            if on_sample is not None:
+                on_sample()
+        return writer.commit({"scene_token": scene_token, "scene_name": scene_name, "samples": len(samples)})
+
+
 # ------------------------------------------------------------------------------ workers
 
 _WORKER: Preparer | None = None
@@ -85,7 +109,7 @@ def _init_worker(config: PrepareConfig) -> None:
 def _run_in_worker(args: tuple[str, str, str]) -> tuple[str, int]:
     out, scene_token, shard = args
     assert _WORKER is not None
-    record = _WORKER.scene(Path(out), scene_token, shard)
+    record = write_scene_shard(_WORKER, Path(out), scene_token, shard)
     return shard, record["samples"]
 
 
@@ -133,7 +157,7 @@ def prepare(
     with tqdm(total=total, unit="sample", disable=not progress, desc="prepare") as bar:
         if workers == 1 or len(todo) <= 1:
             for token, name in todo:
-                preparer.scene(out, token, name, on_sample=lambda: bar.update(1))
+                write_scene_shard(preparer, out, token, name, on_sample=lambda: bar.update(1))
         else:
             del preparer
             context = multiprocessing.get_context("spawn")

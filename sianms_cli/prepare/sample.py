@@ -3,14 +3,11 @@
 from __future__ import annotations
 
 import zlib
-from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import pyarrow as pa
 import torch
 
-from sianms_cli.data.cache import ShardWriter, clear_shard
 from sianms_cli.data.frustums import extract_frustum
 from sianms_cli.data.pairs import contiguous_pairs
 from sianms_cli.data.schemas import FRUSTUMS_SCHEMA, PAIRS_SCHEMA, detections_schema, with_metadata
@@ -25,7 +22,6 @@ from sianms_cli.detection2d.simulated import SimulatedDetectorConfig, simulate_d
 from sianms_cli.geometry.transforms import apply_transform, global_to_sensor, sensor_to_global, transform_boxes
 from sianms_cli.geometry.transforms import invert_transform, make_transform
 from sianms_cli.nuscenes.loader import NuScenesDB
-from sianms_cli.nuscenes.rigs import sample_rigs
 from sianms_cli.prepare.config import PrepareConfig
 
 
@@ -216,20 +212,3 @@ class Preparer:
                            self.config.sampling_ratio, aligned=True)
         array = pooled.to(torch.float16).numpy().astype("<f2")
         return [array[k].tobytes() for k in range(len(array))]
-
-    # -- one shard
-
-    def scene(self, out: Path, scene_token: str, shard: str, on_sample: Callable[[], None] | None = None) -> dict:
-        """Write one scene's shard; return its completion record."""
-        clear_shard(out, shard)
-        samples = self.db.sample_tokens_of_scene(scene_token)
-        scene_name = str(self.db.table("scene").column("name")[self.db.table("scene").index(scene_token)])
-        rigs, which = sample_rigs(self.db, samples)
-        with ShardWriter(out, shard, self.schemas) as writer:
-            for sample_token, rig_index in zip(samples, which.tolist()):
-                if rig_index >= 0:
-                    for name, table in self.sample(scene_token, scene_name, sample_token, rigs[rig_index]).items():
-                        writer.write(name, table)
-                if on_sample is not None:
-                    on_sample()
-            return writer.commit({"scene_token": scene_token, "scene_name": scene_name, "samples": len(samples)})
