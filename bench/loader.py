@@ -1,15 +1,19 @@
 """Benchmark the nuScenes table loader against the official devkit on the same dataroot.
 
-Loads ``DATAROOT/VERSION`` with :class:`NuScenesDB` and, when the devkit venv exists
-(``scripts/devkit_venv.sh``), with ``nuscenes.NuScenes`` in a child process of that venv,
-and prints both times, their ratio and our peak memory.
+Loads ``DATAROOT/VERSION`` with :class:`NuScenesDB` in a fresh child process (so that its
+peak memory is the load's own) and, when the devkit venv exists (``scripts/devkit_venv.sh``),
+with ``nuscenes.NuScenes`` in a child process of that venv, and prints both times, their
+ratio and our peak memory. Our load is timed ``--repeat`` times and the fastest counts; its
+CPU time, printed beside the wall time, varies less on a busy machine.
 
     python bench/loader.py data/synth-mini v1.0-mini
+    python bench/loader.py data/synth-mini v1.0-mini --repeat 3
 """
 
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import os
 import resource
 import subprocess
@@ -30,19 +34,36 @@ print(time.perf_counter() - start)
 """
 
 
+def _load_child(dataroot: str, version: str, queue) -> None:
+    start, start_cpu = time.perf_counter(), time.process_time()
+    db = NuScenesDB(dataroot, version)
+    seconds, cpu = time.perf_counter() - start, time.process_time() - start_cpu
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    sizes = ", ".join(f"{name} {len(db.table(name))}" for name in ("sample", "sample_data", "sample_annotation"))
+    queue.put((seconds, cpu, peak, sizes))
+
+
+def measure_load(dataroot: Path, version: str) -> tuple[float, float, float, str]:
+    """(wall seconds, CPU seconds, peak RSS in MiB, table sizes) of one load in a fresh process."""
+    context = multiprocessing.get_context("spawn")
+    queue = context.Queue()
+    process = context.Process(target=_load_child, args=(str(dataroot), version, queue))
+    process.start()
+    result = queue.get()
+    process.join()
+    return result
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("dataroot", type=Path)
     parser.add_argument("version")
+    parser.add_argument("--repeat", type=int, default=1, help="loads to time; the fastest counts")
     args = parser.parse_args()
 
-    start = time.perf_counter()
-    db = NuScenesDB(args.dataroot, args.version)
-    ours = time.perf_counter() - start
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    sizes = ", ".join(f"{name} {len(db.table(name))}" for name in ("sample", "sample_data", "sample_annotation"))
+    ours, cpu, peak, sizes = min(measure_load(args.dataroot, args.version) for _ in range(args.repeat))
     print(f"{args.dataroot}/{args.version}: {sizes}")
-    print(f"  sianms NuScenesDB: {ours:.2f} s, peak RSS {peak:.0f} MiB")
+    print(f"  sianms NuScenesDB: {ours:.2f} s ({cpu:.2f} s CPU), peak RSS {peak:.0f} MiB")
     if not DEVKIT_PYTHON.exists():
         print(f"  devkit: not measured ({DEVKIT_PYTHON} absent; run scripts/devkit_venv.sh)")
         return

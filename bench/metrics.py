@@ -264,10 +264,10 @@ def _ours_child(dataroot: str, results_path: str, queue) -> None:
         started = time.perf_counter()
         report = evaluate(db, SPLIT, results, "detection_cvpr_2019", ["all"])
         times["evaluate"] = time.perf_counter() - started
-    times["matching_and_metrics"] = report["regions"]["all"]["eval_time"]
+    times["matching_and_metrics"] = report.regions["all"].eval_time
     queue.put({"times": times, "peak_mib": _peak_mib(), "peak_loading_tables_mib": peak_loading_tables,
                "tables_mib": tables_mib, "peak_metrics_mib": sampler.peak,
-               "summary": report["regions"]["all"], "boxes": report["boxes"]})
+               "summary": report.regions["all"].summary(), "boxes": report.serialize()["boxes"]})
 
 
 def run_ours(dataroot: Path, results: Path) -> dict:

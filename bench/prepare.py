@@ -24,15 +24,15 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from sianms_cli.prepare.config import PrepareConfig
-from sianms_cli.prepare.job import prepare
-from sianms_cli.synth.generate import SynthConfig, synthesize
+from sianms_cli.prepare.job import run as prepare
+from sianms_cli.synth.generate import SynthConfig, run as run_synth
 
 CHILD = """
 import resource, sys, json
 from sianms_cli.prepare.config import PrepareConfig
-from sianms_cli.prepare.job import prepare
+from sianms_cli.prepare.job import run as prepare
 config = PrepareConfig(sys.argv[1], "v1.0-mini", "all", seed=0, fill_missed=True)
-result = prepare(config, sys.argv[2], workers=1, progress=False)
+result = prepare(config, sys.argv[2], workers=1)
 print(json.dumps({"samples": result.manifest["counts"]["samples"],
                   "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
 """
@@ -41,7 +41,7 @@ TARGETS = {"car": (0.80, 0.85), "pedestrian": (0.62, 0.80), "bicycle": (0.58, 0.
 
 
 def dataset(root: Path, scenes: int, seconds: float, scale: float) -> Path:
-    synthesize(root, SynthConfig(scenes=scenes, image_scale=scale, scene_seconds=seconds, seed=1), progress=False)
+    run_synth(SynthConfig(scenes=scenes, image_scale=scale, scene_seconds=seconds, seed=1), root)
     names = SynthConfig(scenes=scenes).scene_names()
     (root / "v1.0-mini" / "splits.json").write_text(json.dumps({"all": names}))
     return root
@@ -88,7 +88,7 @@ def main() -> None:
         for workers in (1, 2):
             config = PrepareConfig(str(large), "v1.0-mini", "all", seed=0, fill_missed=True)
             start = time.perf_counter()
-            result = prepare(config, tmp / f"cache-w{workers}", workers=workers, progress=False)
+            result = prepare(config, tmp / f"cache-w{workers}", workers=workers)
             elapsed = time.perf_counter() - start
             rates[workers] = result.manifest["counts"]["samples"] / elapsed
             print(f"workers={workers}: {result.manifest['counts']['samples']} samples in {elapsed:.1f} s "

@@ -24,14 +24,14 @@ from pathlib import Path
 import numpy as np
 
 from sianms_cli.nuscenes.sensors import write_jpeg, write_pcd_bin
-from sianms_cli.synth.generate import SynthConfig, synthesize
+from sianms_cli.synth.generate import SynthConfig, run as run_synth
 from sianms_cli.nuscenes.tables import CAMERA_CHANNELS
 from sianms_cli.synth.rig import FULL_IMAGE_SIZE
 
 
 def _synth_child(out: str, config: SynthConfig, workers: int, queue) -> None:
     start = time.perf_counter()
-    synthesize(Path(out), config, progress=False, workers=workers)
+    run_synth(config, Path(out), workers=workers)
     seconds = time.perf_counter() - start
     peak_kib = max(resource.getrusage(who).ru_maxrss for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
     queue.put((seconds, peak_kib / 1024))

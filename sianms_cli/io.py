@@ -38,7 +38,8 @@ class OutputError(SianmsError):
 def describe_os_error(error: OSError, path: str | Path | None = None) -> str:
     """``<path>: <cause>`` for an OSError, the path taken from the error when not given."""
     where = path if path is not None else error.filename
-    cause = error.strerror or str(error) or type(error).__name__
+    # The errno's own words: libraries such as pyarrow put a longer text in strerror.
+    cause = os.strerror(error.errno) if error.errno else (error.strerror or str(error) or type(error).__name__)
     return f"{where}: {cause}" if where is not None else cause
 
 

@@ -5,16 +5,21 @@ ignore SIGINT, so a Ctrl-C in the terminal (sent to the whole process group) rea
 parent only; :func:`terminate_on_sigterm` makes SIGTERM raise :class:`Terminated` (a
 KeyboardInterrupt) there too. Either way the exception unwinds the parent through its
 cleanup code, and leaving :func:`worker_pool` terminates and joins every worker: no
-process outlives the run and no worker writes after the parent has cleaned up.
+process outlives the run and no worker writes after the parent has cleaned up. A caller
+that consumes results in a generator wraps it in ``contextlib.closing``, so an interrupt
+between two results also closes the pool before the caller cleans up.
 """
 
 from __future__ import annotations
 
 import multiprocessing
 import signal
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
-from multiprocessing.pool import Pool
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterable, Iterator
+
+from sianms_cli.errors import SianmsError
 
 
 class Terminated(KeyboardInterrupt):
@@ -37,24 +42,63 @@ def _start_worker(initializer: Callable[..., None] | None, initargs: tuple) -> N
         initializer(*initargs)
 
 
+class WorkerDied(SianmsError):
+    """A worker process ended without finishing its task (killed, e.g. by the OOM killer)."""
+
+    exit_code = 1
+
+
+class WorkerPool:
+    """Tasks run in worker processes, results as they finish or in task order."""
+
+    def __init__(self, executor: ProcessPoolExecutor) -> None:
+        self._executor = executor
+
+    def imap(self, function: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]:
+        """Start ``function(item)`` for every item now; their results, in item order."""
+        futures = [self._executor.submit(function, item) for item in items]
+        return (_result(future) for future in futures)
+
+    def imap_unordered(self, function: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]:
+        """Start ``function(item)`` for every item now; their results, as each one finishes."""
+        futures = [self._executor.submit(function, item) for item in items]
+        return (_result(future) for future in as_completed(futures))
+
+    def terminate(self) -> None:
+        """Stop every worker now, running tasks included."""
+        # ProcessPoolExecutor has no public way to stop running tasks before Python 3.14
+        # (terminate_workers); its process table is the only handle on them.
+        for process in list((self._executor._processes or {}).values()):
+            process.terminate()
+        self._executor.shutdown(wait=True, cancel_futures=True)
+
+
+def _result(future: Future) -> Any:
+    try:
+        return future.result()
+    except BrokenProcessPool:
+        raise WorkerDied("a worker process died before finishing its task (killed by a signal, or out of "
+                         "memory?); finished outputs are kept, a rerun resumes") from None
+
+
 @contextmanager
 def worker_pool(
     workers: int,
     initializer: Callable[..., None] | None = None,
     initargs: tuple = (),
-) -> Iterator[Pool]:
+) -> Iterator[WorkerPool]:
     """A pool of ``workers`` fresh ("spawn") processes, all gone when the block is left.
 
-    A clean exit lets the workers finish (close and join); an exception or an interrupt
-    terminates them at once.
+    A clean exit lets the workers finish; an exception or an interrupt terminates them at
+    once. A worker that dies mid-task (SIGKILL, the OOM killer) raises :class:`WorkerDied`
+    instead of leaving the run waiting for a result that never comes.
     """
-    context = multiprocessing.get_context("spawn")
-    pool = context.Pool(workers, initializer=_start_worker, initargs=(initializer, initargs))
+    executor = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=_start_worker, initargs=(initializer, initargs))
+    pool = WorkerPool(executor)
     try:
         yield pool
-        pool.close()
     except BaseException:
         pool.terminate()
         raise
-    finally:
-        pool.join()
+    executor.shutdown(wait=True)

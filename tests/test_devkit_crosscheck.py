@@ -62,7 +62,7 @@ def run_checked(command: list[str], what: str, timeout: float) -> None:
 def dataroot(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A 2-scene synthetic v1.0-mini dataroot written by `sianms synth`."""
     root = tmp_path_factory.mktemp("devkit_crosscheck") / "dataroot"
-    run_checked([sys.executable, "-m", "sianms_cli", "synth", str(root), *SYNTH_ARGS], "sianms synth", 1800)
+    run_checked([sys.executable, "-m", "sianms_cli", "synth", "--out", str(root), *SYNTH_ARGS], "sianms synth", 1800)
     return root
 
 

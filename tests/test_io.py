@@ -10,14 +10,6 @@ from sianms_cli import io
 from sianms_cli.errors import DataFormatError, OutputExistsError
 
 
-@pytest.fixture
-def umask():
-    """Set the process umask for one test, restored afterwards."""
-    previous = os.umask(0o022)
-    yield lambda value: os.umask(value)
-    os.umask(previous)
-
-
 def mode(path):
     return stat.S_IMODE(os.stat(path).st_mode)
 

@@ -9,20 +9,24 @@ import pytest
 from sianms_cli.data.cache import decode_roi_features, read_dataset, roi_feature_shape
 from sianms_cli.data.index import build_pair_index
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
+from sianms_cli.evaluation.boxes import LABEL
+from sianms_cli.evaluation.dataset import ego_poses, eval_split, ground_truth
+from sianms_cli.evaluation.regions import centers_in_ego, overlap_bits, region_mask
 from sianms_cli.geometry.frustum import points_in_frustum, rotate_from_frustum
 from sianms_cli.geometry.boxes import points_in_boxes
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.rigs import sample_rigs
 from sianms_cli.prepare import sample as prepare_module
 from sianms_cli.prepare.config import PrepareConfig
-from sianms_cli.prepare.job import prepare
-from sianms_cli.synth.generate import SynthConfig, synthesize
+from sianms_cli.prepare.job import run as prepare
+from sianms_cli.reporting.dataset_summary import summarize
+from sianms_cli.synth.generate import SynthConfig, run as run_synth
 
 
 @pytest.fixture(scope="module")
 def dataroot(tmp_path_factory):
     root = tmp_path_factory.mktemp("synth")
-    synthesize(root, SynthConfig(scenes=2, image_scale=0.25, scene_seconds=1.5, seed=3), progress=False)
+    run_synth(SynthConfig(scenes=2, image_scale=0.25, scene_seconds=1.5, seed=3), root)
     return root
 
 
@@ -34,7 +38,7 @@ def config(dataroot):
 @pytest.fixture(scope="module")
 def cache(config, tmp_path_factory):
     out = tmp_path_factory.mktemp("cache") / "c"
-    prepare(config, out, progress=False)
+    prepare(config, out)
     return out
 
 
@@ -115,11 +119,62 @@ def test_pairs_only_contiguous_cameras_and_same_instance(cache, config):
                 assert detections[det_id]["instance_token"] == instance and detections[det_id]["camera"] in pair_name
 
 
+def metrics_overlap(db, split):
+    """The overlap region as `sianms metrics` finds it: {annotation token: (in overlap, is a car, pair bits)}."""
+    the_split = eval_split(db, split)
+    boxes, rows = ground_truth(db, the_split)
+    rotation, translation = ego_poses(db, the_split)
+    rigs, rig_of_sample = sample_rigs(db, the_split.sample_tokens)
+    bits = overlap_bits(boxes, centers_in_ego(boxes, rotation, translation), rigs, rig_of_sample)
+    kept = region_mask("overlap", bits, len(boxes))
+    tokens = db.table("sample_annotation").tokens[rows]
+    return bits.pair_names, {str(token): (bool(keep), label == LABEL["car"], int(bit))
+                             for token, keep, label, bit in zip(tokens, kept, boxes["label"], bits.bits)}
+
+
+def test_prepare_info_and_metrics_agree_on_the_overlap_region(config, tmp_path):
+    # mini_val holds this dataset's cars in the overlap region; filling in missed objects makes
+    # prepare list every car it projects, as on a training split.
+    val = PrepareConfig(config.dataroot, config.version, "mini_val", seed=5, fill_missed=True)
+    cache = prepare(val, tmp_path / "val").out
+    db = NuScenesDB(config.dataroot, config.version)
+    pair_names, metrics = metrics_overlap(db, val.split)
+    # prepare: each associated detection lists exactly the pairs of its camera whose overlap
+    # holds its annotation's centre, and a pair is center_in_overlap exactly when its pair bit is set.
+    detections = read_dataset(cache, "detections").select(["detection_id", "camera", "annotation_token",
+                                                            "overlap_pairs"]).to_pylist()
+    marked_cars = set()
+    for det in detections:
+        if det["annotation_token"] is None:
+            assert det["overlap_pairs"] == []
+            continue
+        _, car, bit = metrics[det["annotation_token"]]
+        assert det["overlap_pairs"] == [name for k, name in enumerate(pair_names)
+                                        if bit >> k & 1 and det["camera"] in name.split("|")]
+        if car and det["overlap_pairs"]:
+            marked_cars.add(det["annotation_token"])
+    annotation_of = {det["detection_id"]: det["annotation_token"] for det in detections}
+    pairs = read_dataset(cache, "pairs").to_pylist()
+    assert any(pair["center_in_overlap"] for pair in pairs)
+    for pair in pairs:
+        bit = metrics[annotation_of[pair["reference_detection_id"]]][2]
+        assert pair["center_in_overlap"] == bool(bit >> pair_names.index(pair["pair"]) & 1)
+    # Prepare marks every car of the overlap region it has a detection of (all but those hidden
+    # behind nearer objects in every image: no detector finds them, and they are not filled in).
+    in_overlap_cars = {token for token, (keep, car, _) in metrics.items() if keep and car}
+    detected = {det["annotation_token"] for det in detections}
+    assert marked_cars == in_overlap_cars & detected and len(marked_cars) == 1 and len(in_overlap_cars) == 2
+    # info: its count of cars in the overlap over the whole dataset is the metrics' count over both splits.
+    everything = {**metrics, **metrics_overlap(db, "mini_train")[1]}
+    cars_in_overlap = sum(keep and car for keep, car, _ in everything.values())
+    assert summarize(db, max_sweeps=0)["car_annotations_in_overlap"] == cars_in_overlap
+
+
 def test_same_seed_same_bytes_and_independent_of_workers_and_shards(cache, config, tmp_path):
-    prepare(config, tmp_path / "again", progress=False)
+    prepare(config, tmp_path / "again")
     assert file_bytes(tmp_path / "again") == file_bytes(cache)
     other = PrepareConfig(config.dataroot, config.version, "mini_train", seed=6)
-    prepare(other, tmp_path / "other", progress=False)
+    prepare(other, tmp_path / "other")
     a = pq.read_table(cache / "detections" / "scene-0061.parquet").column("x1").to_pylist()
     b = pq.read_table(tmp_path / "other" / "detections" / "scene-0061.parquet").column("x1").to_pylist()
     assert a != b
@@ -129,11 +184,11 @@ def test_shards_and_two_workers_give_the_same_files(config, dataroot, tmp_path):
     # A split of two scenes (custom split file) run as shard 0/2 and 1/2, then as 2 workers.
     (dataroot / "v1.0-mini" / "splits.json").write_text(json.dumps({"both": ["scene-0061", "scene-0103"]}))
     both = PrepareConfig(config.dataroot, config.version, "both", seed=5)
-    first = prepare(both, tmp_path / "sharded", shard="0/2", progress=False)
+    first = prepare(both, tmp_path / "sharded", shard="0/2")
     assert first.shards_run == ["scene-0061"] and not first.manifest["complete"]
-    second = prepare(both, tmp_path / "sharded", shard="1/2", progress=False)
+    second = prepare(both, tmp_path / "sharded", shard="1/2")
     assert second.shards_run == ["scene-0103"] and second.manifest["complete"]
-    prepare(both, tmp_path / "workers", workers=2, progress=False)
+    prepare(both, tmp_path / "workers", workers=2)
     assert file_bytes(tmp_path / "sharded") == file_bytes(tmp_path / "workers")
 
 
@@ -150,16 +205,18 @@ def test_a_run_killed_half_way_then_rerun_gives_the_same_output(config, dataroot
 
     monkeypatch.setattr(prepare_module.Preparer, "sample", dies_on_the_third_sample)
     with pytest.raises(KeyboardInterrupt):
-        prepare(config, out, progress=False)
-    assert not list((out / "detections").glob("*.parquet"))  # only hidden temporary files
-    assert list((out / "detections").glob(".*.tmp"))
+        prepare(config, out)
+    assert not list((out / "detections").glob("*.parquet"))
+    assert not list(out.rglob("*.tmp"))  # the interrupted shard's temporary files are removed
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert (manifest["complete"], manifest["shards_expected"], manifest["missing_shards"]) == (False, 1, ["scene-0061"])
     monkeypatch.setattr(prepare_module.Preparer, "sample", original)
-    result = prepare(config, out, progress=False)
+    result = prepare(config, out)
     assert result.shards_run == ["scene-0061"]
     assert not list(out.rglob("*.tmp"))
     assert file_bytes(out) == file_bytes(cache)
     # A finished shard is skipped on the next run.
-    assert prepare(config, out, progress=False).shards_skipped == ["scene-0061"]
+    assert prepare(config, out).shards_skipped == ["scene-0061"]
 
 
 def test_bad_inputs_fail_clearly_and_write_nothing(config, dataroot, tmp_path):
@@ -170,22 +227,22 @@ def test_bad_inputs_fail_clearly_and_write_nothing(config, dataroot, tmp_path):
                                 "score": 0.9, "class": "car"}]))
     out = tmp_path / "out"
     with pytest.raises(DataFormatError, match="record nope.*no such sample_data"):
-        prepare(PrepareConfig(config.dataroot, config.version, "mini_train", detector=f"file:{bad}"), out, progress=False)
+        prepare(PrepareConfig(config.dataroot, config.version, "mini_train", detector=f"file:{bad}"), out)
     assert not out.exists()
     with pytest.raises(SianmsError, match="needs --weights"):
-        prepare(PrepareConfig(config.dataroot, config.version, "mini_train", backbone="resnet50-c4"), out, progress=False)
+        prepare(PrepareConfig(config.dataroot, config.version, "mini_train", backbone="resnet50-c4"), out)
     assert not out.exists()
     with pytest.raises(SianmsError, match="--shard"):
-        prepare(config, out, shard="3/2", progress=False)
+        prepare(config, out, shard="3/2")
 
 
 def test_refuses_another_config_unless_overwrite(cache, config, tmp_path):
     other = PrepareConfig(config.dataroot, config.version, "mini_train", seed=99)
     with pytest.raises(OutputExistsError, match="differs in: seed"):
-        prepare(other, cache, progress=False)
+        prepare(other, cache)
     (tmp_path / "x.txt").write_text("")
     with pytest.raises(OutputExistsError, match="not empty"):
-        prepare(config, tmp_path, progress=False)
+        prepare(config, tmp_path)
 
 
 def test_external_detections_file(config, dataroot, tmp_path):
@@ -197,7 +254,7 @@ def test_external_detections_file(config, dataroot, tmp_path):
         {"sample_data_token": front, "x1": 10.0, "y1": 20.0, "x2": 60.0, "y2": 70.0, "score": 0.7, "class": "car"},
         {"sample_data_token": front, "x1": 0.0, "y1": 0.0, "x2": 5.0, "y2": 5.0, "score": 0.9, "class": "truck"}]}))
     external = PrepareConfig(config.dataroot, config.version, "mini_train", detector=f"file:{path}", fill_missed=False)
-    result = prepare(external, tmp_path / "out", progress=False)
+    result = prepare(external, tmp_path / "out")
     assert result.manifest["config"]["fill_missed"] is False
     assert len(result.manifest["config"]["detector_sha256"]) == 64
     detections = read_dataset(tmp_path / "out", "detections").drop(["roi_feature"]).to_pylist()
@@ -207,7 +264,7 @@ def test_external_detections_file(config, dataroot, tmp_path):
                                                     "y2": 5, "score": 0.5, "class": "car"}]))
     with pytest.raises(DataFormatError, match="x1 < x2"):
         prepare(PrepareConfig(config.dataroot, config.version, "mini_train", detector=f"file:{tmp_path / 'bad.json'}"),
-                tmp_path / "out2", progress=False)
+                tmp_path / "out2")
 
 
 def test_readable_by_pandas_if_installed(cache):

@@ -4,19 +4,21 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Optional
 
 import typer
 
-from sianms_cli.cli._app import command
-from sianms_cli.nuscenes.loader import NuScenesDB
-from sianms_cli.reporting.dataset_summary import format_summary, summarize
+from sianms_cli.cli._app import ProgressBar, command
 
 
 @command("info")
 def info_cli(
-    dataroot: Path = typer.Argument(..., help="nuScenes-format dataroot."),
+    dataroot: Path = typer.Option(..., help="nuScenes-format dataroot."),
     version: str = typer.Option("v1.0-mini", help="Version folder inside the dataroot."),
-    max_sweeps: int = typer.Option(200, help="LiDAR keyframe files read for the points-per-sweep figure (0: none)."),
+    max_sweeps: int = typer.Option(200, help="LiDAR key-frame files read for the points-per-sweep figure (0: none)."),
+    out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here (atomically)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing --out file."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
     as_json: bool = typer.Option(False, "--json", help="Print the figures as JSON."),
 ) -> None:
     """Describe a nuScenes-format dataset: counts, class mix, LiDAR points, overlap share.
@@ -25,5 +27,9 @@ def info_cli(
     annotation and per sweep, visibility and attribute shares, and the share of car
     annotations in the camera-overlap region.
     """
-    summary = summarize(NuScenesDB(dataroot, version), max_sweeps=max_sweeps)
+    from sianms_cli.reporting.dataset_summary import InfoConfig, format_summary, run
+
+    config = InfoConfig(dataroot=str(dataroot), version=version, max_sweeps=max_sweeps)
+    with ProgressBar(quiet) as bar:
+        summary = run(config, out, overwrite=overwrite, progress=bar)
     typer.echo(json.dumps(summary, indent=2) if as_json else format_summary(summary))

@@ -8,10 +8,8 @@ from typing import Optional
 
 import typer
 
-from sianms_cli.cli._app import command
+from sianms_cli.cli._app import ProgressBar, command
 from sianms_cli.nuscenes.classes import PAPER_CLASSES
-from sianms_cli.prepare.config import PrepareConfig
-from sianms_cli.prepare.job import prepare
 
 
 @command("prepare")
@@ -26,20 +24,27 @@ def prepare_cli(
     classes: str = typer.Option(",".join(PAPER_CLASSES), help="Comma-separated detection classes."),
     seed: int = typer.Option(0, help="Same seed, byte-identical cache."),
     iou_threshold: float = typer.Option(0.5, help="Minimum 2D IoU to associate a detection with the ground truth."),
-    fill_missed: Optional[bool] = typer.Option(None, "--fill-missed/--no-fill-missed",
-                                               help="Add projected GT of missed objects (default: on for train splits)."),
+    fill_missed: Optional[bool] = typer.Option(None, "--fill-missed/--no-fill-missed", show_default=False,
+                                               help="Add projected GT of missed objects [default: on for train splits]."),
     roi_size: int = typer.Option(7, help="ROI Align output size (PH = PW)."),
     sampling_ratio: int = typer.Option(0, help="ROI Align samples per bin side; <= 0 adaptive."),
-    sweeps: int = typer.Option(0, help="Earlier LiDAR sweeps added to each key frame."),
+    sweeps: int = typer.Option(0, help="Earlier LiDAR sweeps added to each key frame (needs sweeps between key frames)."),
     min_depth: float = typer.Option(1.0, help="Frustum near depth, metres."),
-    max_depth: Optional[float] = typer.Option(None, help="Frustum far depth, metres (default: none)."),
+    max_depth: Optional[float] = typer.Option(None, help="Frustum far depth, metres [default: none]."),
     workers: int = typer.Option(1, help="Processes (the output does not depend on it)."),
     shard: Optional[str] = typer.Option(None, help="K/N: do only the scenes at positions K mod N (array jobs)."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Delete an existing cache at --out first."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a cache of another config at --out."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
-    as_json: bool = typer.Option(False, "--json", help="Print the manifest counts as JSON."),
+    as_json: bool = typer.Option(False, "--json", help="Print what was done as JSON."),
 ) -> None:
-    """Run the offline step of the paper: detections, ROI features, frustums and pairs, as Parquet."""
+    """Run the offline step of the paper: detections, ROI features, frustums and pairs, as Parquet.
+
+    Runs into the same --out cooperate shard by shard (one scene per shard); an interrupted
+    run leaves its finished shards, and a rerun resumes.
+    """
+    from sianms_cli.prepare.config import PrepareConfig
+    from sianms_cli.prepare.job import run
+
     config = PrepareConfig(
         dataroot=str(dataroot), version=version, split=split, detector=detector, backbone=backbone,
         weights=None if weights is None else str(weights),
@@ -47,15 +52,19 @@ def prepare_cli(
         iou_threshold=iou_threshold, fill_missed=fill_missed, roi_size=roi_size, sampling_ratio=sampling_ratio,
         sweeps=sweeps, min_depth=min_depth, max_depth=max_depth,
     )
-    result = prepare(config, out, workers=workers, shard=shard, overwrite=overwrite, progress=not quiet)
+    with ProgressBar(quiet) as bar:
+        result = run(config, out, overwrite=overwrite, progress=bar, workers=workers, shard=shard)
     manifest = result.manifest
     if as_json:
-        typer.echo(json.dumps({"out": str(result.out), "ran": result.shards_run, "skipped": result.shards_skipped,
-                               "complete": manifest["complete"], "counts": manifest["counts"]}, indent=2))
+        typer.echo(json.dumps({"out": str(result.out), "written": result.shards_run,
+                               "already_finished": result.shards_skipped, "busy": result.shards_busy,
+                               "complete": manifest["complete"], "missing_shards": manifest["missing_shards"],
+                               "counts": manifest["counts"]}, indent=2))
         return
     counts = manifest["counts"]
+    busy = f", {len(result.shards_busy)} being written by another run" if result.shards_busy else ""
     typer.echo(
-        f"prepared {len(result.shards_run)} shard(s), skipped {len(result.shards_skipped)} finished; "
+        f"prepared {len(result.shards_run)} shard(s), skipped {len(result.shards_skipped)} finished{busy}; "
         f"{manifest['shards_finished']}/{manifest['shards_expected']} shards in {result.out}: "
         f"{counts['samples']} samples, {counts['detections']} detections, {counts['frustums']} frustums, "
         f"{counts['pairs']} pairs" + ("" if manifest["complete"] else " (incomplete: other shards pending)")

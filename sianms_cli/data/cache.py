@@ -7,11 +7,15 @@ Layout of a cache folder::
     frustums/<shard>.parquet
     pairs/<shard>.parquet
     _shards/<shard>.json               completion record of a shard (written last)
+    _shards/<shard>.lock               held (flock) by the run writing the shard
+    .sianms.lock                       held while a run claims the folder or rewrites the manifest
 
 A shard's files are written under hidden temporary names (``.<shard>.parquet.tmp``) one row
 group per sample, renamed when complete, and the shard counts as finished only once its
-completion record exists. A rerun skips finished shards and rewrites the others; readers
-(which skip hidden files and match ``*.parquet``) never see a half-written file.
+completion record (with the files' row counts and SHA-256) exists. A rerun skips finished
+shards and rewrites the others; readers (which skip hidden files and match ``*.parquet``)
+never see a half-written file. The manifest says ``complete`` only when every shard of the
+split is finished.
 """
 
 from __future__ import annotations
@@ -27,28 +31,42 @@ import pyarrow.parquet as pq
 
 from sianms_cli.data.schemas import DATASETS, SCHEMA_VERSION
 from sianms_cli.errors import DataFormatError
-from sianms_cli.io import sha256_of, write_json
+from sianms_cli.io import make_folder, os_errors_as_output_errors, read_json, sha256_of, write_json
 
 MANIFEST = "manifest.json"
 SHARDS = "_shards"
+FOLDER_LOCK = ".sianms.lock"
+
+
+def shard_lock_path(root: Path, shard: str) -> Path:
+    return Path(root) / SHARDS / f"{shard}.lock"
 
 
 class ShardWriter:
     """Streams one shard of the three datasets to temporary files; :meth:`commit` finishes it.
 
-    Use as a context manager; leaving the block without :meth:`commit` (an error, a kill)
-    leaves only temporary files, which :func:`clear_shard` removes on the next run.
+    Use as a context manager: leaving the block without :meth:`commit` (an error, a full
+    disk, an interrupt) closes and deletes the temporary files. Only a kill that gives no
+    chance to clean up leaves them, hidden; :func:`clear_shard` removes them on the next run.
     """
 
     def __init__(self, root: Path, shard: str, schemas: dict[str, pa.Schema]) -> None:
         self.root, self.shard, self.schemas = Path(root), shard, schemas
         self.rows = {name: 0 for name in DATASETS}
+        # The files are opened here, not by pyarrow, so that they are closed even when
+        # writing the Parquet footer fails.
+        self._files: dict[str, pa.NativeFile] = {}
         self._writers: dict[str, pq.ParquetWriter] = {}
-        for name in DATASETS:
-            folder = self.root / name
-            folder.mkdir(parents=True, exist_ok=True)
-            self._writers[name] = pq.ParquetWriter(
-                self._tmp(name), schemas[name], compression="zstd", write_statistics=True)
+        try:
+            for name in DATASETS:
+                make_folder(self.root / name)
+                with os_errors_as_output_errors(self._final(name)):
+                    self._files[name] = pa.OSFile(str(self._tmp(name)), "wb")
+                    self._writers[name] = pq.ParquetWriter(
+                        self._files[name], schemas[name], compression="zstd", write_statistics=True)
+        except BaseException:
+            self._abandon()
+            raise
 
     def _final(self, name: str) -> Path:
         return self.root / name / f"{self.shard}.parquet"
@@ -59,32 +77,51 @@ class ShardWriter:
     def write(self, name: str, table: pa.Table) -> None:
         """Append ``table`` (one sample's rows) as a row group of dataset ``name``."""
         if table.num_rows:
-            self._writers[name].write_table(table.cast(self.schemas[name]))
+            with os_errors_as_output_errors(self._final(name)):
+                self._writers[name].write_table(table.cast(self.schemas[name]))
             self.rows[name] += table.num_rows
 
-    def close(self) -> None:
+    def _close(self) -> None:
+        for name in DATASETS:
+            with os_errors_as_output_errors(self._final(name)):
+                self._writers.pop(name).close()
+                self._files.pop(name).close()
+
+    def _abandon(self) -> None:
+        """Close what is open, ignoring errors (the files are deleted), and delete the files."""
         for writer in self._writers.values():
-            writer.close()
-        self._writers = {}
+            try:
+                writer.close()
+            except OSError:
+                writer.is_open = False  # else pyarrow retries the close, and fails again, when collected
+        for file in self._files.values():
+            try:
+                file.close()
+            except OSError:
+                pass
+        self._writers, self._files = {}, {}
+        for name in DATASETS:
+            self._tmp(name).unlink(missing_ok=True)
 
     def commit(self, extra: dict[str, Any]) -> dict[str, Any]:
         """Close, rename the files into place, then write the shard's completion record."""
-        self.close()
+        self._close()
         files = {}
         for name in DATASETS:
-            os.replace(self._tmp(name), self._final(name))
+            with os_errors_as_output_errors(self._final(name)):
+                os.replace(self._tmp(name), self._final(name))
             files[f"{name}/{self.shard}.parquet"] = {
                 "rows": self.rows[name], "sha256": sha256_of(self._final(name))}
         record = {"shard": self.shard, "files": files, **extra}
-        (self.root / SHARDS).mkdir(exist_ok=True)
         write_json(self.root / SHARDS / f"{self.shard}.json", record)
         return record
 
     def __enter__(self) -> ShardWriter:
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type, *exc) -> None:
+        if exc_type is not None:
+            self._abandon()
 
 
 def shard_done(root: Path, shard: str) -> bool:
@@ -116,17 +153,30 @@ def shard_records(root: Path) -> dict[str, dict[str, Any]]:
 
 
 def read_manifest(root: Path) -> dict[str, Any] | None:
+    """The manifest of the cache at ``root``; None when there is none.
+
+    A manifest that is not a sianms cache manifest raises DataFormatError naming the field.
+    """
     path = Path(root) / MANIFEST
     if not path.is_file():
         return None
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as error:
-        raise DataFormatError(path, f"not valid JSON ({error.msg})") from None
+    manifest = read_json(path)
+    if not isinstance(manifest, dict):
+        raise DataFormatError(path, "not a sianms cache manifest (expected a JSON object)")
+    for field, kind in (("schema_version", int), ("config", dict)):
+        if not isinstance(manifest.get(field), kind):
+            raise DataFormatError(path, f"not a sianms cache manifest ({kind.__name__} expected)", field=field)
+    return manifest
 
 
-def write_manifest(root: Path, config: dict[str, Any], expected_shards: list[str]) -> dict[str, Any]:
-    """(Re)write manifest.json from the config and the finished shards' records."""
+def write_manifest(root: Path, config: dict[str, Any], expected_shards: list[str],
+                   dataroot: str | Path) -> dict[str, Any]:
+    """(Re)write manifest.json from the config and the finished shards' records.
+
+    ``complete`` is true only when the split has shards and every one of them is finished.
+    ``dataroot`` is recorded for people; the cache is tied to the dataset's content through
+    the config's fingerprint, not to this path.
+    """
     records = shard_records(root)
     totals = {name: 0 for name in DATASETS}
     samples = 0
@@ -142,7 +192,8 @@ def write_manifest(root: Path, config: dict[str, Any], expected_shards: list[str
         "config": config,
         "shards_expected": len(expected_shards),
         "shards_finished": len([s for s in expected_shards if s in records]),
-        "complete": not missing,
+        "dataroot": str(Path(dataroot).resolve()),
+        "complete": bool(expected_shards) and not missing,
         "missing_shards": missing,
         "counts": {"samples": samples, **totals},
         "files": dict(sorted(files.items())),

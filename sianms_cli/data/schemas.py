@@ -97,3 +97,20 @@ def with_metadata(schema: pa.Schema, dataset: str, extra: dict[str, str] | None 
     """``schema`` with the sianms metadata of ``dataset``."""
     metadata = {"sianms.dataset": dataset, "sianms.schema_version": str(SCHEMA_VERSION), **(extra or {})}
     return schema.with_metadata({k.encode(): v.encode() for k, v in metadata.items()})
+
+
+def cache_schemas(feature_shape: tuple[int, int, int], backbone: str) -> dict[str, pa.Schema]:
+    """The schemas of the three datasets of one cache, metadata included, by dataset name.
+
+    Args:
+        feature_shape: (C, PH, PW) of one ROI feature, stored as little-endian float16.
+        backbone: the backbone's name, recorded with the features.
+    """
+    channels, height, width = (int(v) for v in feature_shape)
+    metadata = {"sianms.roi_feature_shape": f"{channels},{height},{width}", "sianms.roi_feature_dtype": "<f2",
+                "sianms.backbone": backbone}
+    return {
+        "detections": with_metadata(detections_schema(channels * height * width * 2), "detections", metadata),
+        "frustums": with_metadata(FRUSTUMS_SCHEMA, "frustums"),
+        "pairs": with_metadata(PAIRS_SCHEMA, "pairs"),
+    }

@@ -22,10 +22,10 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from sianms_cli.nuscenes.classes import DETECTION_CLASSES
-from sianms_cli.detection2d.detections import Detections2D
+from sianms_cli.detection2d.detections import Detections2D, GroundTruth2D
 from sianms_cli.errors import DataFormatError
 from sianms_cli.io import read_json
+from sianms_cli.nuscenes.classes import DETECTION_CLASSES
 from sianms_cli.nuscenes.loader import NuScenesDB
 
 FIELDS = ("sample_data_token", "x1", "y1", "x2", "y2", "score", "class")
@@ -63,8 +63,13 @@ class ExternalDetections:
         self._classes = names[order]
         self.count = len(self._tokens)
 
-    def of(self, sample_data_token: str) -> Detections2D:
-        """The detections of one image, sorted by descending score (possibly none)."""
+    def detections(self, sample_data_token: str, ground_truth: GroundTruth2D, image_size: tuple[int, int],
+                   rng: np.random.Generator) -> Detections2D:
+        """The file's detections of one image, sorted by descending score (possibly none).
+
+        A :class:`~sianms_cli.detection2d.detectors.Detector`: the ground truth, image size and
+        generator play no part.
+        """
         lo = np.searchsorted(self._tokens, sample_data_token, side="left")
         hi = np.searchsorted(self._tokens, sample_data_token, side="right")
         return Detections2D(self._boxes[lo:hi].copy(), self._scores[lo:hi].copy(),

@@ -34,10 +34,9 @@ import numpy as np
 
 from sianms_cli.detection2d.association import box_iou
 from sianms_cli.detection2d.classes import check_classes
-from sianms_cli.nuscenes.classes import PAPER_CLASSES
-from sianms_cli.detection2d.detections import Detections2D
-from sianms_cli.detection2d.ground_truth import CameraGroundTruth
+from sianms_cli.detection2d.detections import Detections2D, GroundTruth2D
 from sianms_cli.errors import SianmsError
+from sianms_cli.nuscenes.classes import PAPER_CLASSES
 
 REFERENCE_WIDTH = 1600.0  # nuScenes camera images are 1600 x 900
 
@@ -139,7 +138,7 @@ def detection_probability(
 
 
 def simulate_detections(
-    gt: CameraGroundTruth,
+    gt: GroundTruth2D,
     image_size: tuple[int, int],
     rng: np.random.Generator,
     config: SimulatedDetectorConfig = SimulatedDetectorConfig(),
@@ -163,18 +162,30 @@ def simulate_detections(
         model = config.models[name]
         mine = gt.subset(gt.classes == name)
         parts.append(_true_detections(mine, model, name, scale, width, height, rng))
-        parts.append(_false_positives(gt.boxes2d, model, name, scale, width, height, rng))
+        parts.append(_false_positives(gt.boxes, model, name, scale, width, height, rng))
     detections = Detections2D.concatenate(parts)
     keep = detections.scores >= config.score_threshold
     return Detections2D(detections.boxes[keep], detections.scores[keep], detections.classes[keep]).sorted_by_score()
 
 
+@dataclass(frozen=True)
+class SimulatedDetector:
+    """The simulated detector as a :class:`~sianms_cli.detection2d.detectors.Detector`."""
+
+    config: SimulatedDetectorConfig = field(default_factory=SimulatedDetectorConfig)
+
+    def detections(self, sample_data_token: str, ground_truth: GroundTruth2D, image_size: tuple[int, int],
+                   rng: np.random.Generator) -> Detections2D:
+        """The image's detections, drawn from ``rng`` (the token plays no part)."""
+        return simulate_detections(ground_truth, image_size, rng, self.config)
+
+
 def _true_detections(
-    gt: CameraGroundTruth, model: ClassModel, name: str, scale: float, width: float, height: float,
+    gt: GroundTruth2D, model: ClassModel, name: str, scale: float, width: float, height: float,
     rng: np.random.Generator,
 ) -> Detections2D:
     count = len(gt)
-    boxes = gt.boxes2d
+    boxes = gt.boxes
     box_w = boxes[:, 2] - boxes[:, 0]
     box_h = boxes[:, 3] - boxes[:, 1]
     height_ref = box_h * scale

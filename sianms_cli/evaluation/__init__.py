@@ -27,15 +27,16 @@ from sianms_cli.evaluation.boxes import (
 )
 from sianms_cli.evaluation.config import PRESETS, DetectionConfig, load_config
 from sianms_cli.evaluation.dataset import EvalSplit, eval_split, ground_truth
-from sianms_cli.evaluation.evaluate import (
-    align_results,
-    evaluate,
-    format_report,
+from sianms_cli.evaluation.evaluate import MetricsConfig, align_results, evaluate
+from sianms_cli.evaluation.metrics import evaluate_boxes
+from sianms_cli.evaluation.report import (
+    FilterCounts,
+    MetricsReport,
+    RegionMetrics,
+    read_report,
     report_json,
-    run_metrics,
     write_report,
 )
-from sianms_cli.evaluation.metrics import evaluate_boxes
 from sianms_cli.evaluation.results import (
     Results,
     ResultsFormatError,
@@ -53,7 +54,11 @@ __all__ = [
     "TP_METRICS",
     "DetectionConfig",
     "EvalSplit",
+    "FilterCounts",
     "MetricData",
+    "MetricsConfig",
+    "MetricsReport",
+    "RegionMetrics",
     "Results",
     "ResultsFormatError",
     "accumulate",
@@ -68,14 +73,13 @@ __all__ = [
     "eval_split",
     "evaluate",
     "evaluate_boxes",
-    "format_report",
     "ground_truth",
     "load_config",
     "make_boxes",
+    "read_report",
     "read_results",
     "report_json",
     "results_from_boxes",
-    "run_metrics",
     "scale_iou",
     "validate_results",
     "velocity_l2",

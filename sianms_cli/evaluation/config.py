@@ -30,6 +30,7 @@ from sianms_cli.errors import DataFormatError, SianmsError
 from sianms_cli.evaluation.boxes import DETECTION_NAMES, LABEL
 from sianms_cli.nuscenes.classes import PAPER_CLASSES
 from sianms_cli.io import read_json
+from sianms_cli.json_stream import is_number, json_kind
 
 DETECTION_CVPR_2019: dict[str, Any] = {
     "class_range": {
@@ -123,7 +124,7 @@ class DetectionConfig:
         Raises DataFormatError naming ``source`` and the offending field.
         """
         if not isinstance(content, dict):
-            raise DataFormatError(source, f"a configuration must be a JSON object, got {_kind(content)}")
+            raise DataFormatError(source, f"a configuration must be a JSON object, got {json_kind(content)}")
         unknown = [key for key in content if key not in DETECTION_CVPR_2019]
         if unknown:
             raise DataFormatError(source, f"unknown field; the fields are {', '.join(DETECTION_CVPR_2019)}",
@@ -138,7 +139,7 @@ class DetectionConfig:
             if cls_name not in LABEL:
                 fail(f"class_range.{cls_name}",
                      f"unknown detection class; known: {', '.join(DETECTION_NAMES)}")
-            if not _is_number(value) or not math.isfinite(value) or value <= 0:
+            if not is_number(value) or not math.isfinite(value) or value <= 0:
                 fail(f"class_range.{cls_name}", f"must be a positive number of metres, got {value!r}")
 
         if merged["dist_fcn"] != CENTER_DISTANCE:
@@ -146,22 +147,22 @@ class DetectionConfig:
 
         dist_ths = merged["dist_ths"]
         if (not isinstance(dist_ths, list) or not dist_ths
-                or not all(_is_number(t) and math.isfinite(t) and t > 0 for t in dist_ths)):
+                or not all(is_number(t) and math.isfinite(t) and t > 0 for t in dist_ths)):
             fail("dist_ths", f"must be a non-empty list of positive numbers of metres, got {dist_ths!r}")
         if len(set(dist_ths)) != len(dist_ths):
             fail("dist_ths", f"thresholds must be distinct, got {dist_ths!r}")
-        if not _is_number(merged["dist_th_tp"]) or merged["dist_th_tp"] not in dist_ths:
+        if not is_number(merged["dist_th_tp"]) or merged["dist_th_tp"] not in dist_ths:
             fail("dist_th_tp", f"must be one of dist_ths {dist_ths!r}, got {merged['dist_th_tp']!r}")
         min_recall, min_precision = merged["min_recall"], merged["min_precision"]
-        if not _is_number(min_recall) or not 0 <= min_recall <= 1:
+        if not is_number(min_recall) or not 0 <= min_recall <= 1:
             fail("min_recall", f"must be a number in [0, 1], got {min_recall!r}")
-        if not _is_number(min_precision) or not 0 <= min_precision < 1:
+        if not is_number(min_precision) or not 0 <= min_precision < 1:
             fail("min_precision", f"must be a number in [0, 1), got {min_precision!r}")
         max_boxes = merged["max_boxes_per_sample"]
         if not isinstance(max_boxes, int) or isinstance(max_boxes, bool) or max_boxes < 1:
             fail("max_boxes_per_sample", f"must be a positive integer, got {max_boxes!r}")
         weight = merged["mean_ap_weight"]
-        if not _is_number(weight) or not math.isfinite(weight) or weight < 0:
+        if not is_number(weight) or not math.isfinite(weight) or weight < 0:
             fail("mean_ap_weight", f"must be a non-negative number, got {weight!r}")
 
         return cls(
@@ -195,14 +196,6 @@ def load_config(spec: str | Path | DetectionConfig = "detection_cvpr_2019") -> D
             f"config '{text}' is neither a preset ({', '.join(PRESETS)}) nor an existing JSON file"
         )
     return DetectionConfig.from_dict(read_json(path), source=path, name=str(path))
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
-def _kind(value: Any) -> str:
-    return {dict: "an object", list: "a list", str: "a string"}.get(type(value), type(value).__name__)
 
 
 def _failer(source: str | Path):

@@ -28,9 +28,9 @@ from sianms_cli.evaluation.boxes import (
 )
 from sianms_cli.nuscenes.classes import CATEGORY_TO_DETECTION
 from sianms_cli.nuscenes.loader import NuScenesDB
+from sianms_cli.nuscenes.overlap import LIDAR_CHANNEL, lidar_ego_poses
 from sianms_cli.nuscenes.splits import PREDEFINED_SPLITS, split_scene_names
 
-LIDAR_CHANNEL = "LIDAR_TOP"
 MAX_TIME_DIFF = 1.5  # seconds between annotations for the devkit's velocity estimate (x2 centred)
 
 
@@ -76,22 +76,16 @@ def eval_split(db: NuScenesDB, split: str) -> EvalSplit:
 def ego_poses(db: NuScenesDB, split: EvalSplit) -> tuple[np.ndarray, np.ndarray]:
     """(rotation (S, 4) w,x,y,z, translation (S, 3) m) of each sample's LIDAR_TOP key frame.
 
-    Like the devkit's ``sample['data']``, a later key frame of the channel wins. A sample
+    The pose the overlap rule uses too (:func:`sianms_cli.nuscenes.overlap.lidar_ego_poses`;
+    a later key frame of the channel wins, as the devkit's ``sample['data']``). A sample
     without one raises DataFormatError: the devkit needs it for the range filter.
     """
-    sample_data = db.table("sample_data")
-    lidar = np.flatnonzero(sample_data.column("is_key_frame") & (db.sample_data_channels() == LIDAR_CHANNEL))
-    owner = sample_data.rows("sample_token")[lidar]
-    last_of_sample = np.full(len(db.table("sample")), -1, dtype=np.int64)
-    np.maximum.at(last_of_sample, owner, lidar)
-    keyframes = last_of_sample[split.sample_rows]
-    if (keyframes < 0).any():
-        token = split.sample_tokens[int(np.flatnonzero(keyframes < 0)[0])]
+    rotation, translation, found = lidar_ego_poses(db, split.sample_rows)
+    if not found.all():
+        token = split.sample_tokens[int(np.flatnonzero(~found)[0])]
         raise DataFormatError(db.table("sample").path, f"has no {LIDAR_CHANNEL} key frame, whose ego pose the "
                               "evaluation needs", token=token, field="data")
-    poses = db.table("ego_pose")
-    pose_rows = sample_data.rows("ego_pose_token")[keyframes]
-    return poses.column("rotation")[pose_rows].copy(), poses.column("translation")[pose_rows].copy()
+    return rotation, translation
 
 
 def _split_index(db: NuScenesDB, split: EvalSplit) -> np.ndarray:

@@ -11,35 +11,45 @@ The pipeline is the devkit's ``DetectionEval`` (reference §5.3), on arrays:
 5. per region (``all``, ``overlap``, ``non-overlap``, one camera pair), the region mask on
    GT and predictions alike, then matching, AP, TP errors, means and NDS.
 
-:func:`evaluate` returns a JSON-ready report whose ``regions`` hold, per region, an object
-with the keys of the devkit's ``metrics_summary.json``.
+Every region follows the devkit's rule for a class without ground truth (``accumulate``
+returns ``DetectionMetricData.no_predictions()`` when ``npos == 0``): AP 0 and TP errors 1,
+kept in mAP, the mean TP errors and NDS. A region therefore scores exactly what the devkit
+scores on that region's boxes; :class:`~sianms_cli.evaluation.report.RegionMetrics` says
+which classes had no ground truth.
+
+:func:`run` is the command (a :class:`MetricsConfig`, an optional JSON output);
+:func:`evaluate` the same on a loaded dataset and results. Both return a
+:class:`~sianms_cli.evaluation.report.MetricsReport`.
 """
 
 from __future__ import annotations
 
-import json
-import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 
-from sianms_cli.errors import DataFormatError, OutputExistsError
-from sianms_cli.io import check_writable_output, write_text
-from sianms_cli.evaluation.boxes import DETECTION_NAMES, TP_METRICS
-from sianms_cli.evaluation.config import DetectionConfig, load_config
+from sianms_cli.errors import DataFormatError, SianmsError
+from sianms_cli.evaluation.boxes import DETECTION_NAMES
+from sianms_cli.evaluation.config import PRESETS, DetectionConfig, load_config
 from sianms_cli.evaluation.dataset import EvalSplit, bicycle_racks, ego_poses, eval_split, ground_truth
-from sianms_cli.evaluation.filters import filter_boxes
-from sianms_cli.evaluation.metrics import evaluate_boxes, threshold_key
+from sianms_cli.evaluation.filters import FilterResult, filter_boxes
+from sianms_cli.evaluation.metrics import evaluate_boxes
 from sianms_cli.evaluation.regions import (
     ALL,
+    EVERY_PAIR,
+    NON_OVERLAP,
+    OVERLAP,
+    PAIR_PREFIX,
     centers_in_ego,
     needs_overlap,
     overlap_bits,
     region_mask,
     resolve_regions,
 )
+from sianms_cli.evaluation.report import FilterCounts, MetricsReport, RegionMetrics, write_report
 from sianms_cli.evaluation.results import (
     Results,
     ResultsFormatError,
@@ -47,8 +57,99 @@ from sianms_cli.evaluation.results import (
     read_results,
     validate_results,
 )
+from sianms_cli.io import check_writable_output
 from sianms_cli.nuscenes.loader import NuScenesDB
+from sianms_cli.nuscenes.tables import check_version_name
 from sianms_cli.nuscenes.rigs import sample_rigs
+from sianms_cli.progress import SILENT, Progress
+
+# --------------------------------------------------------------------------- command
+
+
+@dataclass(frozen=True, kw_only=True)
+class MetricsConfig:
+    """What `sianms metrics` evaluates: these fields alone decide the numbers of the report.
+
+    Attributes:
+        dataroot, version: the nuScenes-format dataset (``--dataroot``, ``--version``).
+        split: a predefined split or a name from ``<version>/splits.json`` (``--split``).
+        results: the results file in the nuScenes submission format (``--results``).
+        detection_config: a preset (``detection_cvpr_2019``, ``paper``) or a JSON file with
+            the devkit's config fields (``--config``).
+        regions: region names (:mod:`sianms_cli.evaluation.regions`), in report order; a
+            comma-separated string is split. Camera pairs are checked against the dataset's
+            rigs when it is loaded.
+
+    Raises SianmsError naming the flag for a value that cannot be right on any dataset.
+    """
+
+    dataroot: str
+    version: str = "v1.0-mini"
+    split: str
+    results: str
+    detection_config: str = "detection_cvpr_2019"
+    regions: tuple[str, ...] = (ALL,)
+
+    def __post_init__(self) -> None:
+        for name, flag in (("dataroot", "--dataroot"), ("version", "--version"), ("split", "--split"),
+                           ("results", "--results"), ("detection_config", "--config")):
+            value = str(getattr(self, name))
+            if not value.strip():
+                raise SianmsError(f"{flag}: must not be empty")
+            object.__setattr__(self, name, value)
+        check_version_name(self.version)
+        if self.detection_config not in PRESETS and not Path(self.detection_config).is_file():
+            raise SianmsError(f"--config: '{self.detection_config}' is neither a preset "
+                              f"({', '.join(PRESETS)}) nor an existing JSON file")
+        raw = self.regions.split(",") if isinstance(self.regions, str) else self.regions
+        regions = tuple(name.strip() for name in raw if name.strip())
+        if not regions:
+            raise SianmsError(f"--region: no region given; expected {_REGION_SYNTAX}")
+        for name in regions:
+            if not _is_region_name(name):
+                raise SianmsError(f"--region: unknown region '{name}'; expected {_REGION_SYNTAX}")
+        object.__setattr__(self, "regions", regions)
+
+
+_REGION_SYNTAX = f"{ALL}, {OVERLAP}, {NON_OVERLAP}, '{EVERY_PAIR}' or '{PAIR_PREFIX}CAM_A|CAM_B' (comma-separated)"
+
+
+def _is_region_name(name: str) -> bool:
+    """Whether ``name`` is a region on some rig (a pair's cameras are checked on the dataset)."""
+    if name in (ALL, OVERLAP, NON_OVERLAP, EVERY_PAIR):
+        return True
+    cameras = name[len(PAIR_PREFIX):].split("|") if name.startswith(PAIR_PREFIX) else []
+    return len(cameras) == 2 and all(cameras) and cameras[0] != cameras[1]
+
+
+def run(config: MetricsConfig, out: str | Path | None = None, *, overwrite: bool = False,
+        progress: Progress = SILENT) -> MetricsReport:
+    """`sianms metrics`: load the dataset, read the results, evaluate, write ``out`` if given.
+
+    ``out`` (the JSON report, :func:`~sianms_cli.evaluation.report.write_report`) is refused
+    before any work when it is a folder, the results file, or exists while ``overwrite`` is
+    false; it is written atomically. ``progress`` hears of the results file's bytes read,
+    then of the regions evaluated.
+    """
+    if out is not None:
+        if Path(out).resolve() == Path(config.results).resolve():
+            raise SianmsError(f"--out: {out} is the results file; write the report elsewhere")
+        out = check_writable_output(out, overwrite=overwrite)
+    detection = load_config(config.detection_config)
+    db = NuScenesDB(config.dataroot, config.version)
+    split = eval_split(db, config.split)
+    results_path = Path(config.results)
+    if results_path.is_file():
+        progress.start(results_path.stat().st_size, "B", "reading results")
+    results = read_results(results_path, max_boxes_per_sample=detection.max_boxes_per_sample,
+                           progress=progress.advance)
+    report = evaluate(db, split, results, detection, config.regions, progress=progress)
+    if out is not None:
+        write_report(out, report, overwrite=overwrite)
+    return report
+
+
+# --------------------------------------------------------------------------- evaluation
 
 
 def align_results(results: Results, split: EvalSplit) -> tuple[np.ndarray, int]:
@@ -92,7 +193,9 @@ def evaluate(
     results: Results,
     config: str | Path | DetectionConfig = "detection_cvpr_2019",
     regions: Sequence[str] | str = (ALL,),
-) -> dict[str, Any]:
+    *,
+    progress: Progress = SILENT,
+) -> MetricsReport:
     """Evaluate results on a split, per region.
 
     Args:
@@ -102,11 +205,10 @@ def evaluate(
             here against the configuration's box limit.
         config: a preset name (``detection_cvpr_2019``, ``paper``), a JSON file or a config.
         regions: region names (:mod:`sianms_cli.evaluation.regions`), or one comma-separated string.
+        progress: told of each region evaluated.
 
     Returns:
-        The report: ``split``, ``samples``, ``config`` (its name), ``cfg``, ``boxes`` (counts
-        through the filters), ``regions`` {name: metrics_summary-like object, NaN for the
-        devkit's exempt TP errors}, ``region_boxes`` {name: {"gt"|"pred": {class: count}}}.
+        The report; its regions are in the order asked for, ``overlap:*`` expanded.
     """
     started = time.perf_counter()
     regions = regions.split(",") if isinstance(regions, str) else list(regions)
@@ -135,31 +237,26 @@ def evaluate(
             pair_names = overlap[side].pair_names
     names = resolve_regions(regions, pair_names)
 
-    summaries: dict[str, dict] = {}
-    region_boxes: dict[str, dict] = {}
+    progress.start(len(names), "region", "evaluating")
+    metrics: dict[str, RegionMetrics] = {}
     for name in names:
         gt_in = gt if name == ALL else gt[region_mask(name, overlap["gt"], len(gt))]
         pred_in = pred if name == ALL else pred[region_mask(name, overlap["pred"], len(pred))]
         summary, _ = evaluate_boxes(gt_in, pred_in, config)
-        summary["meta"] = results.meta
-        summaries[name] = summary
-        region_boxes[name] = {"gt": _class_counts(gt_in, config), "pred": _class_counts(pred_in, config)}
-    return {
-        "dataroot": str(db.dataroot),
-        "version": db.version,
-        "split": split.name,
-        "samples": len(split),
-        "results": results.path,
-        "config": config.name,
-        "cfg": config.serialize(),
-        "boxes": {
-            "gt": {"loaded": len(gt_filter.kept), **gt_filter.counts()},
-            "pred": {"loaded": len(pred_filter.kept), **pred_filter.counts(), "ignored_samples": ignored},
-        },
-        "regions": summaries,
-        "region_boxes": region_boxes,
-        "seconds": time.perf_counter() - started,
-    }
+        metrics[name] = RegionMetrics(
+            label_aps=summary["label_aps"], mean_dist_aps=summary["mean_dist_aps"], mean_ap=summary["mean_ap"],
+            label_tp_errors=summary["label_tp_errors"], tp_errors=summary["tp_errors"],
+            tp_scores=summary["tp_scores"], nd_score=summary["nd_score"], eval_time=summary["eval_time"],
+            gt_counts=_class_counts(gt_in, config), pred_counts=_class_counts(pred_in, config))
+        progress.advance()
+    return MetricsReport(
+        dataroot=str(db.dataroot), version=db.version, split=split.name, samples=len(split), results=results.path,
+        cfg=config, meta=results.meta, gt_filter=_filter_counts(gt_filter), pred_filter=_filter_counts(pred_filter),
+        ignored_samples=ignored, regions=metrics, seconds=time.perf_counter() - started)
+
+
+def _filter_counts(result: FilterResult) -> FilterCounts:
+    return FilterCounts(loaded=len(result.kept), **result.counts())
 
 
 def _class_counts(boxes: np.ndarray, config: DetectionConfig) -> dict[str, int]:
@@ -176,92 +273,3 @@ def _check_gt_sizes(db: NuScenesDB, gt: np.ndarray, annotation_rows: np.ndarray)
         raise DataFormatError(annotations.path, f"size must be positive to be evaluated, got "
                               f"{annotations.column('size')[row].tolist()}", token=str(annotations.tokens[row]),
                               field="size")
-
-
-# --------------------------------------------------------------------------- command
-
-
-def run_metrics(
-    dataroot: str | Path,
-    version: str,
-    split: str,
-    results_path: str | Path,
-    config: str | Path | DetectionConfig = "detection_cvpr_2019",
-    regions: Sequence[str] = (ALL,),
-    out: str | Path | None = None,
-    overwrite: bool = False,
-    progress: Callable[[int], None] | None = None,
-) -> dict[str, Any]:
-    """`sianms metrics`: load the dataset, read the results, evaluate, write ``out``.
-
-    ``out`` is refused before any work when it exists and ``overwrite`` is false, and is
-    written atomically (temporary file in the same folder, then a rename). ``progress`` is
-    called with the characters of the results file read so far (for a progress bar).
-    """
-    if out is not None and Path(out).exists() and not overwrite:
-        raise OutputExistsError(f"{out} exists; pass --overwrite to replace it")
-    config = load_config(config)
-    db = NuScenesDB(dataroot, version)
-    the_split = eval_split(db, split)
-    results = read_results(results_path, max_boxes_per_sample=config.max_boxes_per_sample, progress=progress)
-    report = evaluate(db, the_split, results, config, regions)
-    if out is not None:
-        write_report(out, report, overwrite=overwrite)
-    return report
-
-
-def report_json(report: dict[str, Any]) -> str:
-    """The report as strict JSON (NaN and infinities written as null)."""
-    return json.dumps(_finite_or_none(report), indent=2, allow_nan=False)
-
-
-def write_report(path: str | Path, report: dict[str, Any], *, overwrite: bool = False) -> Path:
-    """Write the report as strict JSON, atomically; refuses to replace a file unless ``overwrite``."""
-    write_text(check_writable_output(path, overwrite=overwrite), report_json(report) + "\n")
-    return Path(path)
-
-
-def _finite_or_none(value: Any) -> Any:
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {key: _finite_or_none(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_finite_or_none(item) for item in value]
-    return value
-
-
-# --------------------------------------------------------------------------- table
-
-
-_TP_HEADERS = {"trans_err": "ATE", "scale_err": "ASE", "orient_err": "AOE", "vel_err": "AVE", "attr_err": "AAE"}
-
-
-def format_report(report: dict[str, Any]) -> str:
-    """A compact text table per region: per-class AP at each threshold, AP, the five TP errors;
-    then the means, mAP and NDS."""
-    cfg = report["cfg"]
-    thresholds = [threshold_key(th) for th in cfg["dist_ths"]]
-    metrics = TP_METRICS
-    header = (f"{'class':<22}" + "".join(f"{'AP@' + t:>9}" for t in thresholds) + f"{'AP':>9}"
-              + "".join(f"{_TP_HEADERS[m]:>8}" for m in metrics))
-    lines = [f"{report['split']}: {report['samples']} samples, config {report['config']}, "
-             f"results {report['results']}"]
-    for name, summary in report["regions"].items():
-        counts = report["region_boxes"][name]
-        lines += ["", f"region {name}: {sum(counts['gt'].values())} GT boxes, "
-                  f"{sum(counts['pred'].values())} predictions (after filters)", header]
-        for cls in cfg["class_range"]:
-            lines.append(f"{cls:<22}" + "".join(_cell(summary["label_aps"][cls][t], 9) for t in thresholds)
-                         + _cell(summary["mean_dist_aps"][cls], 9)
-                         + "".join(_cell(summary["label_tp_errors"][cls][m], 8) for m in metrics))
-        lines.append(f"{'mean':<22}" + " " * (9 * len(thresholds)) + _cell(summary["mean_ap"], 9)
-                     + "".join(_cell(summary["tp_errors"][m], 8) for m in metrics))
-        lines.append(f"mAP {summary['mean_ap']:.4f}   NDS {summary['nd_score']:.4f}")
-    return "\n".join(lines)
-
-
-def _cell(value: float | None, width: int) -> str:
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return f"{'-':>{width}}"
-    return f"{value:>{width}.3f}"

@@ -1,11 +1,10 @@
 """Evaluation regions: all boxes, the camera-overlap region, its complement, one camera pair.
 
 A region is a per-box predicate applied to ground truth and predictions alike before matching.
-Overlap follows THE rule of :mod:`sianms_cli.geometry.rig`: the box centre, in front of the
-camera, projects inside the images of both cameras of a contiguous pair. For every box the
-rig is that of its sample (the calibrated_sensor records of the sample's key-frame cameras)
-and the centre is taken into the ego frame with the ego pose of the sample's LIDAR_TOP key
-frame (the pose the devkit measures ranges from).
+Overlap is decided by :mod:`sianms_cli.nuscenes.overlap`, the one function `prepare` and `info`
+use too: the box centre, in front of the camera, projects inside the images of both cameras
+of a contiguous pair of its sample's rig, the centre taken into the ego frame with the ego
+pose of the sample's LIDAR_TOP key frame. This module adapts it to the evaluation's box tables.
 
 Region names:
 
@@ -18,14 +17,14 @@ Region names:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Iterable, Sequence
 
 import numpy as np
 
 from sianms_cli.errors import SianmsError
-from sianms_cli.geometry.quaternion import quat_to_matrix
 from sianms_cli.geometry.rig import CameraRig
+from sianms_cli.nuscenes import overlap as dataset_overlap
+from sianms_cli.nuscenes.overlap import OverlapBits
 
 ALL = "all"
 OVERLAP = "overlap"
@@ -35,43 +34,17 @@ EVERY_PAIR = "overlap:*"
 
 
 def centers_in_ego(boxes: np.ndarray, ego_rotation: np.ndarray, ego_translation: np.ndarray) -> np.ndarray:
-    """(N, 3) box centres in the ego frame of their sample: R_ego^T (p - t_ego)."""
-    rotations = quat_to_matrix(ego_rotation)
-    sample = boxes["sample"]
-    offset = boxes["translation"] - ego_translation[sample]
-    return np.einsum("nji,nj->ni", rotations[sample], offset)
-
-
-@dataclass(frozen=True, eq=False)
-class OverlapBits:
-    """Which contiguous camera pairs see each box: bit k of ``bits`` is pair ``pair_names[k]``.
-
-    ``pair_names`` is the union of the pair names of the rigs involved, in first-seen order
-    (``CAM_FRONT|CAM_FRONT_RIGHT`` first on a nuScenes rig).
-    """
-
-    pair_names: tuple[str, ...]
-    bits: np.ndarray
+    """(N, 3) centres of a box table in the ego frame of their sample (``boxes["sample"]``
+    indexes the (S, 4), (S, 3) poses): :func:`sianms_cli.nuscenes.overlap.centers_in_ego`."""
+    return dataset_overlap.centers_in_ego(boxes["translation"], boxes["sample"], ego_rotation, ego_translation)
 
 
 def overlap_bits(boxes: np.ndarray, centers_ego: np.ndarray, rigs: Sequence[CameraRig],
                  rig_of_sample: np.ndarray) -> OverlapBits:
-    """The overlap pairs of each box, from its sample's rig (-1: no camera, no pair)."""
-    names: list[str] = []
-    for rig in rigs:
-        names.extend(name for name in rig.pair_names if name not in names)
-    if len(names) > 64:
-        raise SianmsError(f"{len(names)} distinct camera pairs; at most 64 are supported")
-    bits = np.zeros(len(boxes), dtype=np.uint64)
+    """The overlap pairs of each box of a box table, from its sample's rig (-1: no camera, no
+    pair): :func:`sianms_cli.nuscenes.overlap.rig_overlap_bits`."""
     box_rig = rig_of_sample[boxes["sample"]] if len(boxes) else np.zeros(0, np.int64)
-    for r, rig in enumerate(rigs):
-        rows = np.flatnonzero(box_rig == r)
-        if len(rows) == 0 or not rig.pair_names:
-            continue
-        seen = rig.overlap_pairs(centers_ego[rows])
-        weights = np.array([1 << names.index(name) for name in rig.pair_names], dtype=np.uint64)
-        bits[rows] = np.bitwise_or.reduce(np.where(seen, weights, np.uint64(0)), axis=1)
-    return OverlapBits(tuple(names), bits)
+    return dataset_overlap.rig_overlap_bits(centers_ego, box_rig, rigs)
 
 
 def _canonical_pair(name: str, pair_names: Sequence[str]) -> str | None:

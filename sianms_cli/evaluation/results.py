@@ -29,29 +29,23 @@ the sample's list) and the field:
 Whether every sample of a split is present is checked against the split by the evaluation
 (:func:`sianms_cli.evaluation.evaluate.align_results`).
 
-Files are read in chunks and decoded one sample at a time, so memory stays near the size of
-the boxes as arrays (about 120 bytes per box), not of the decoded JSON.
+Files are read in chunks and decoded one sample at a time
+(:class:`~sianms_cli.json_stream.JsonStream`), so memory stays near the size of the boxes as
+arrays (about 120 bytes per box), not of the decoded JSON.
 """
 
 from __future__ import annotations
 
 import json
-import re
 from dataclasses import dataclass, field
 from itertools import chain, repeat
 from operator import itemgetter
 from pathlib import Path
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
-try:
-    import orjson
-except ImportError:  # optional: the json module decodes everything, more slowly
-    orjson = None
-
 from sianms_cli.errors import DataFormatError
-from sianms_cli.io import atomic_file, check_writable_output
 from sianms_cli.evaluation.boxes import (
     ATTRIBUTE,
     ATTRIBUTE_NAMES,
@@ -61,6 +55,8 @@ from sianms_cli.evaluation.boxes import (
     NO_ATTRIBUTE,
     empty_boxes,
 )
+from sianms_cli.io import atomic_file, check_writable_output
+from sianms_cli.json_stream import JsonStream, is_number, json_kind, types_within
 
 QUATERNION_TOLERANCE = 1e-2
 """A rotation is accepted when | ||q|| - 1 | <= this (it is normalised before use)."""
@@ -223,7 +219,7 @@ def read_results(path: str | Path, *, max_boxes_per_sample: int = MAX_BOXES_PER_
     parts: list[np.ndarray] = []
     meta: Any = None
     has_results = False
-    with _JsonStream(path, progress) as stream:
+    with JsonStream(path, chunk_chars=_CHUNK_CHARS, progress=progress) as stream:
         for key in stream.object_keys():
             if key == "results":
                 has_results = True
@@ -253,7 +249,7 @@ def _sample_problem(token: str, boxes: Any, seen: set[str], max_boxes: int) -> s
     if token in seen:
         return "sample listed twice"
     if not isinstance(boxes, list):
-        return f"must be a list of boxes, got {_kind(boxes)}"
+        return f"must be a list of boxes, got {json_kind(boxes)}"
     if len(boxes) > max_boxes:
         return f"{len(boxes)} boxes; at most {max_boxes} per sample"
     return None
@@ -263,15 +259,10 @@ def _check_meta(path: Path, meta: Any) -> None:
     if meta is None:
         raise DataFormatError(path, "no 'meta' object (the devkit requires it)", field="meta")
     if not isinstance(meta, dict):
-        raise DataFormatError(path, f"must be an object, got {_kind(meta)}", field="meta")
+        raise DataFormatError(path, f"must be an object, got {json_kind(meta)}", field="meta")
     for flag in META_FLAGS:
         if flag in meta and not isinstance(meta[flag], bool):
             raise DataFormatError(path, f"must be true or false, got {meta[flag]!r}", field=f"meta.{flag}")
-
-
-def _kind(value: Any) -> str:
-    return {dict: "an object", list: "a list", str: "a string", bool: "a boolean",
-            type(None): "null"}.get(type(value), "a number" if isinstance(value, (int, float)) else "?")
 
 
 class _Batch:
@@ -320,7 +311,7 @@ class _Batch:
         table = empty_boxes(len(boxes))
         if not boxes:
             return table
-        if not _types_within(boxes, (dict,)):
+        if not types_within(boxes, (dict,)):
             return None
         try:
             tokens, translation, size, rotation, velocity, names, scores, attributes = (
@@ -336,13 +327,13 @@ class _Batch:
             if array is None:
                 return None
             table[name] = array
-        if not _types_within(scores, (float, int)):
+        if not types_within(scores, (float, int)):
             return None
         try:
             table["score"] = np.fromiter(scores, dtype=np.float64, count=len(scores))
         except OverflowError:
             return None
-        if not (_types_within(names, (str,)) and _types_within(attributes, (str,))):
+        if not (types_within(names, (str,)) and types_within(attributes, (str,))):
             return None
         try:
             table["label"] = np.fromiter(map(LABEL.__getitem__, names), dtype=np.int8, count=len(names))
@@ -371,16 +362,12 @@ class _Batch:
             position += count
 
 
-def _types_within(values: Sequence, allowed: tuple[type, ...]) -> bool:
-    return set(map(type, values)) <= set(allowed)
-
-
 def _numbers(values: Sequence, length: int) -> np.ndarray | None:
     """(N, length) float64 from lists of JSON numbers, or None if any value is not one."""
-    if not _types_within(values, (list,)) or not set(map(len, values)) <= {length}:
+    if not types_within(values, (list,)) or not set(map(len, values)) <= {length}:
         return None
     flat = list(chain.from_iterable(values))
-    if not _types_within(flat, (float, int)):
+    if not types_within(flat, (float, int)):
         return None
     try:
         return np.fromiter(flat, dtype=np.float64, count=len(flat)).reshape(len(values), length)
@@ -391,7 +378,7 @@ def _numbers(values: Sequence, length: int) -> np.ndarray | None:
 def _box_problem(box: Any, token: str) -> tuple[str, str] | None:
     """(field, message) of the first type rule ``box`` breaks, or None."""
     if not isinstance(box, dict):
-        return "results", f"must be an object, got {_kind(box)}"
+        return "results", f"must be an object, got {json_kind(box)}"
     for key in BOX_KEYS:
         if key not in box:
             return key, "missing"
@@ -400,10 +387,10 @@ def _box_problem(box: Any, token: str) -> tuple[str, str] | None:
     for name, length in _VECTORS.items():
         value = box[name]
         if (not isinstance(value, list) or len(value) != length
-                or not all(_is_number(v) for v in value) or not _fits_float(value)):
+                or not all(is_number(v) for v in value) or not _fits_float(value)):
             return name, f"must be a list of {length} numbers, got {value!r}"
     score = box["detection_score"]
-    if not _is_number(score) or not _fits_float([score]):
+    if not is_number(score) or not _fits_float([score]):
         return "detection_score", f"must be a number, got {score!r}"
     name = box["detection_name"]
     if not isinstance(name, str) or name not in LABEL:
@@ -415,170 +402,12 @@ def _box_problem(box: Any, token: str) -> tuple[str, str] | None:
     return None
 
 
-def _is_number(value: Any) -> bool:
-    return type(value) in (int, float)
-
-
 def _fits_float(values: list) -> bool:
     try:
         [float(v) for v in values]
     except OverflowError:
         return False
     return True
-
-
-_WHITESPACE = re.compile(r"[ \t\n\r]*")
-_SIMPLE_STRING = re.compile(r'"([^"\\\x00-\x1f]*)"')
-_EMPTY_LIST = re.compile(r"\[[ \t\n\r]*\]")
-_LIST_END = re.compile(r"\}[ \t\n\r]*\]")
-
-
-class _JsonStream:
-    """Incremental reader of the top two levels of a JSON object, decoding each value whole.
-
-    The file is read in chunks; a value cut by the end of the buffer is decoded again once
-    more text is in. Consumed text is dropped, so memory holds about one chunk.
-    """
-
-    def __init__(self, path: Path, progress: Callable[[int], None] | None) -> None:
-        self.path = path
-        self.progress = progress
-        self.decoder = json.JSONDecoder()
-        self.buffer = ""
-        self.pos = 0
-        self.offset = 0  # characters of the file before the buffer
-        self.eof = False
-
-    def __enter__(self) -> _JsonStream:
-        try:
-            self.file = open(self.path, encoding="utf-8-sig")
-        except OSError as exc:
-            raise DataFormatError(self.path, f"cannot open: {exc.strerror}") from None
-        return self
-
-    def __exit__(self, *exc_info: object) -> None:
-        self.file.close()
-
-    def _fill(self, grow: bool = False) -> None:
-        """Drop the consumed text and read a chunk; ``grow``: at least double the pending text
-        (a value longer than a chunk is then re-decoded O(log n) times, not O(n / chunk))."""
-        self.offset += self.pos
-        size = max(_CHUNK_CHARS, len(self.buffer) - self.pos) if grow else _CHUNK_CHARS
-        try:
-            chunk = self.file.read(size)
-        except UnicodeDecodeError as exc:
-            raise DataFormatError(self.path, f"not valid UTF-8 ({exc.reason})") from None
-        self.buffer = self.buffer[self.pos:] + chunk
-        self.pos = 0
-        self.eof = not chunk
-        if self.progress is not None and chunk:
-            self.progress(len(chunk))
-
-    def _error(self, message: str, position: int | None = None) -> DataFormatError:
-        """A DataFormatError at a buffer position, with the line and column in the file
-        (counted by reading the file again: errors are rare, reads are hot)."""
-        target = self.offset + (self.pos if position is None else position)
-        line, column, seen = 1, 1, 0
-        with open(self.path, encoding="utf-8-sig", errors="replace") as again:
-            while seen < target:
-                text = again.read(min(_CHUNK_CHARS, target - seen))
-                if not text:
-                    break
-                newlines = text.count("\n")
-                line += newlines
-                column = len(text) - text.rfind("\n") if newlines else column + len(text)
-                seen += len(text)
-        return DataFormatError(self.path, f"invalid JSON at line {line}, column {column}: {message}")
-
-    def _skip_whitespace(self) -> str:
-        """The next non-blank character ('' at the end of the file)."""
-        while True:
-            self.pos = _WHITESPACE.match(self.buffer, self.pos).end()
-            if self.pos < len(self.buffer):
-                return self.buffer[self.pos]
-            if self.eof:
-                return ""
-            self._fill()
-
-    def _expect(self, characters: str, what: str) -> str:
-        found = self._skip_whitespace()
-        if not found or found not in characters:
-            raise self._error(f"expected {what}, found {found[:1] or 'the end of the file'!r}")
-        self.pos += 1
-        return found
-
-    def value(self) -> Any:
-        """Decode the next JSON value."""
-        if self._skip_whitespace() == "[" and orjson is not None:
-            fast = self._list_by_orjson()
-            if fast is not None:
-                return fast
-        while True:
-            try:
-                value, end = self.decoder.raw_decode(self.buffer, self.pos)
-            except json.JSONDecodeError as exc:
-                if self.eof:
-                    raise self._error(exc.msg, exc.pos) from None
-                self._fill(grow=True)
-                continue
-            if end == len(self.buffer) and not self.eof:
-                self._fill(grow=True)  # a number or literal may go on in the next chunk
-                continue
-            self.pos = end
-            return value
-
-    def _list_by_orjson(self) -> list | None:
-        """The list starting here, decoded by orjson (several times faster), or None.
-
-        The candidate end is the first ``}]`` (or ``[]`` right here): a slice that orjson
-        decodes as a whole is exactly the list that starts here, since a JSON array ends at
-        its matching bracket. Anything else (a ``}]`` inside a string, NaN, which orjson
-        rejects, a list cut by the end of the buffer) returns None for the json module.
-        """
-        match = _EMPTY_LIST.match(self.buffer, self.pos) or _LIST_END.search(self.buffer, self.pos)
-        if match is None:
-            return None
-        try:
-            value = orjson.loads(self.buffer[self.pos:match.end()])
-        except orjson.JSONDecodeError:
-            return None
-        self.pos = match.end()
-        return value
-
-    def _members(self, where: str) -> Iterator[str]:
-        """Keys of the object starting here; the caller decodes each value."""
-        self._expect("{", f"'{{' to open {where}")
-        if self._skip_whitespace() == "}":
-            self.pos += 1
-            return
-        while True:
-            if self._skip_whitespace() != '"':
-                raise self._error(f"expected a string key in {where}")
-            simple = _SIMPLE_STRING.match(self.buffer, self.pos)  # most keys: no escapes, no chunk cut
-            if simple is not None:
-                key, self.pos = simple.group(1), simple.end()
-            else:
-                key = self.value()
-            self._expect(":", "':' after a key")
-            yield key
-            if self._expect(",}", f"',' or '}}' in {where}") == "}":
-                return
-
-    def object_keys(self) -> Iterator[str]:
-        """Keys of the top-level object (each once), then checks nothing follows it."""
-        seen: set[str] = set()
-        for key in self._members("the top-level object"):
-            if key in seen:
-                raise DataFormatError(self.path, "field given twice", field=key)
-            seen.add(key)
-            yield key
-        if self._skip_whitespace():
-            raise self._error("extra data after the top-level object")
-
-    def object_items(self, where: str) -> Iterator[tuple[str, Any]]:
-        """(key, decoded value) of the object that is the next value."""
-        for key in self._members(f"'{where}'"):
-            yield key, self.value()
 
 
 # --------------------------------------------------------------------------- writing

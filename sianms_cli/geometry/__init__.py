@@ -4,10 +4,11 @@ Frames and units follow nuScenes (metres, radians, global -> ego -> sensor, quat
 w, x, y, z, box size w, l, h); points are row-major (N, 3) arrays.
 """
 
-from sianms_cli.geometry.boxes import box_corners, count_points_in_boxes, points_in_boxes
+from sianms_cli.geometry.boxes import box_corners, count_points_in_boxes, points_in_boxes, points_in_own_boxes
 from sianms_cli.geometry.frustum import (
     frustum_angle,
     frustum_corners,
+    frustum_members,
     points_in_frustum,
     rotate_from_frustum,
     rotate_to_frustum,
@@ -15,6 +16,7 @@ from sianms_cli.geometry.frustum import (
 from sianms_cli.geometry.projection import (
     BoxVisibility,
     box_in_image,
+    occlusion_fractions,
     project_boxes_to_image,
     view_points,
 )
@@ -44,12 +46,15 @@ __all__ = [
     "count_points_in_boxes",
     "frustum_angle",
     "frustum_corners",
+    "frustum_members",
     "global_to_sensor",
     "invert_transform",
     "make_transform",
     "matrix_to_quat",
+    "occlusion_fractions",
     "points_in_boxes",
     "points_in_frustum",
+    "points_in_own_boxes",
     "project_boxes_to_image",
     "quat_multiply",
     "quat_to_matrix",

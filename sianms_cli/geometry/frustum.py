@@ -12,6 +12,9 @@ import numpy as np
 
 from sianms_cli.errors import SianmsError
 
+# Upper bound on the bytes of the (boxes x points) mask in frustum_members.
+_MASK_BYTES = 16 * 1024 * 1024
+
 
 def points_in_frustum(
     points_cam: np.ndarray,
@@ -33,15 +36,63 @@ def points_in_frustum(
         (P,) bool: ``max(min_depth, 0) < z < max_depth`` and ``x1 <= u <= x2``,
         ``y1 <= v <= y2``.
     """
-    points_cam = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)
+    in_depth, u, v = _pixels_in_depth(points_cam, intrinsic, min_depth, max_depth)
     x1, y1, x2, y2 = np.asarray(box2d, dtype=np.float64)
+    return in_depth & (u >= x1) & (u <= x2) & (v >= y1) & (v <= y2)
+
+
+def frustum_members(
+    points_cam: np.ndarray,
+    boxes2d: np.ndarray,
+    intrinsic: np.ndarray,
+    min_depth: float = 0.0,
+    max_depth: float = np.inf,
+    max_mask_bytes: int = _MASK_BYTES,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which points lie in the frustum of which 2D box, for all boxes of one camera at once.
+
+    The same test as :func:`points_in_frustum`, row for row: the points are projected once
+    (not once per box) and only those inside the depth window are tested against the boxes,
+    a chunk of boxes at a time so the (boxes x points) mask stays under ``max_mask_bytes``.
+
+    Args:
+        points_cam: (P, 3) points in the camera frame.
+        boxes2d: (N, 4) [x1, y1, x2, y2] pixels; bounds inclusive.
+        intrinsic: (3, 3) camera matrix.
+        min_depth, max_depth: depth window as :func:`points_in_frustum`.
+        max_mask_bytes: bound on the temporary boolean mask.
+
+    Returns:
+        ``(box, point)``: (M,) int64 each, one entry per (box, point inside it), sorted by box
+        then point: the frustum of box n is ``point[box == n]``, in point order.
+    """
+    boxes2d = np.asarray(boxes2d, dtype=np.float64).reshape(-1, 4)
+    in_depth, u, v = _pixels_in_depth(points_cam, intrinsic, min_depth, max_depth)
+    candidates = np.flatnonzero(in_depth)
+    u, v = u[candidates], v[candidates]
+    chunk = max(1, max_mask_bytes // max(1, len(candidates)))
+    boxes, points = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
+    for start in range(0, len(boxes2d), chunk):
+        x1, y1, x2, y2 = (boxes2d[start:start + chunk, j, None] for j in range(4))
+        inside = (u >= x1) & (u <= x2) & (v >= y1) & (v <= y2)
+        box, point = np.nonzero(inside)
+        boxes.append(box + start)
+        points.append(candidates[point])
+    return np.concatenate(boxes), np.concatenate(points)
+
+
+def _pixels_in_depth(
+    points_cam: np.ndarray, intrinsic: np.ndarray, min_depth: float, max_depth: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(P,) bool inside the depth window (and in front), and (P,) u, v pixel coordinates."""
+    points_cam = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)
     depth = points_cam[:, 2]
     in_depth = (depth > min_depth) & (depth < max_depth) & (depth > 0)
     projected = points_cam @ np.asarray(intrinsic, dtype=np.float64).T
     with np.errstate(divide="ignore", invalid="ignore"):
         u = projected[:, 0] / projected[:, 2]
         v = projected[:, 1] / projected[:, 2]
-    return in_depth & (u >= x1) & (u <= x2) & (v >= y1) & (v <= y2)
+    return in_depth, u, v
 
 
 def _rays(pixels: np.ndarray, intrinsic: np.ndarray) -> np.ndarray:
@@ -72,7 +123,7 @@ def frustum_angle(box2d: np.ndarray, intrinsic: np.ndarray) -> np.ndarray:
     return np.pi / 2 - np.arctan2(rays[:, 2], rays[:, 0])
 
 
-def rotate_to_frustum(points_cam: np.ndarray, angle: float) -> np.ndarray:
+def rotate_to_frustum(points_cam: np.ndarray, angle: float | np.ndarray) -> np.ndarray:
     """Rotate camera-frame points into the frustum frame of ``angle``.
 
     Sign convention (that of Frustum PointNets' ``rotate_pc_along_y``):
@@ -82,7 +133,8 @@ def rotate_to_frustum(points_cam: np.ndarray, angle: float) -> np.ndarray:
 
     Args:
         points_cam: (P, 3) camera-frame points.
-        angle: radians.
+        angle: radians, one for all points or (P,) one per point (the frustums of several
+            boxes rotated in one call).
 
     Returns:
         (P, 3) float64 points in the frustum frame.
@@ -90,12 +142,12 @@ def rotate_to_frustum(points_cam: np.ndarray, angle: float) -> np.ndarray:
     return _rotate_about_y(points_cam, angle)
 
 
-def rotate_from_frustum(points_frustum: np.ndarray, angle: float) -> np.ndarray:
+def rotate_from_frustum(points_frustum: np.ndarray, angle: float | np.ndarray) -> np.ndarray:
     """Inverse of :func:`rotate_to_frustum`: frustum-frame points back to the camera frame."""
     return _rotate_about_y(points_frustum, -angle)
 
 
-def _rotate_about_y(points: np.ndarray, angle: float) -> np.ndarray:
+def _rotate_about_y(points: np.ndarray, angle: float | np.ndarray) -> np.ndarray:
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     cos, sin = np.cos(angle), np.sin(angle)
     rotated = points.copy()

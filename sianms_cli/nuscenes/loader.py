@@ -10,12 +10,11 @@ so a v1.0-trainval-sized set (1.2 M annotations, 2.6 M sample_data) fits in a fe
 - token references: resolved once at load to int64 row indices into the referenced table,
   -1 for ``""``; a list of tokens becomes an (N, K) array padded with -1.
 
-Token -> row lookup goes through a sorted 64-bit key per token (a fixed linear hash of the
-token's characters) and ``np.searchsorted``; every hit is confirmed against the token itself.
+Tokens are looked up through :class:`~sianms_cli.nuscenes.token_index.TokenIndex`.
 
-Table files are decoded with orjson when it is installed (2-3x faster than the json module),
-large ones in runs of whole records so that the parser never holds a whole 1 GB file as
-Python objects: a trainval-sized load peaks at about twice what the loaded tables hold.
+Table files are decoded with orjson, large ones in runs of whole records
+(:func:`~sianms_cli.json_stream.array_pieces`) so that the parser never holds a whole 1 GB
+file as Python objects: a trainval-sized load peaks at about twice what the loaded tables hold.
 
 Loading validates everything the toolkit relies on and stops at the first problem with one
 :class:`~sianms_cli.errors.DataFormatError` naming the file, the record token and the field.
@@ -25,217 +24,29 @@ are ignored.
 
 from __future__ import annotations
 
-import gc
-import json
-import mmap
-import re
-from contextlib import contextmanager
 from functools import cached_property
 from itertools import chain
 from operator import itemgetter
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Mapping
+from typing import Any, Iterable, Mapping
 
 import numpy as np
 
 from sianms_cli.errors import DataFormatError, SianmsError
+from sianms_cli.json_stream import array_pieces, collector_paused, types_within
 from sianms_cli.nuscenes.sensors import read_image, read_pcd_bin, resolve_data_path
-from sianms_cli.nuscenes.tables import SCHEMAS, TABLE_NAMES, Field, check_value
-
-try:
-    import orjson
-except ImportError:
-    orjson = None
+from sianms_cli.nuscenes.tables import SCHEMAS, TABLE_NAMES, Field, check_value, check_version_name
+from sianms_cli.nuscenes.token_index import TokenIndex
 
 _REF_KINDS = ("ref", "optional_ref", "ref_list")
 _TEXT_ENCODING = "utf-8"
 # Lone surrogates (legal in JSON escapes) survive the round trip through bytes.
 _TEXT_ERRORS = "surrogatepass"
+# A table file larger than this is decoded in pieces of about this much text.
 _CHUNK_BYTES = 32 * 2**20
-_LIST_START = re.compile(rb"[ \t\n\r]*\[")
-_BETWEEN_OBJECTS = re.compile(rb"\}[ \t\n\r]*,[ \t\n\r]*(?=\{)")
-_SPACE_TO_END = re.compile(rb"[ \t\n\r]*\Z")
 
 
-# --------------------------------------------------------------------------- token index
-
-
-def _hash_multipliers(count: int) -> np.ndarray:
-    """``count`` fixed odd 64-bit multipliers (splitmix64 of 1, 2, ...), one per word."""
-    with np.errstate(over="ignore"):
-        z = np.arange(1, count + 1, dtype=np.uint64) * np.uint64(0x9E3779B97F4A7C15)
-        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-        z = z ^ (z >> np.uint64(31))
-    return z | np.uint64(1)
-
-
-def _token_keys(tokens: np.ndarray) -> np.ndarray:
-    """A uint64 key per token of a numpy unicode array, independent of the array's width.
-
-    The key is a sum of the token's 64-bit words (two UCS-4 characters each) times fixed
-    multipliers; the zero padding of a wider array adds nothing, so the same token gets the
-    same key in arrays of any width.
-    """
-    chars = tokens.dtype.itemsize // 4
-    if chars % 2:
-        tokens = tokens.astype(f"<U{chars + 1}")
-        chars += 1
-    words = np.ascontiguousarray(tokens).view(np.uint64).reshape(len(tokens), chars // 2)
-    keys = np.zeros(len(tokens), dtype=np.uint64)
-    with np.errstate(over="ignore"):
-        for column, multiplier in enumerate(_hash_multipliers(words.shape[1])):
-            keys += words[:, column] * multiplier
-    return keys
-
-
-class _TokenIndex:
-    """Token -> row for one table; falls back to sorting the strings if two keys collide."""
-
-    def __init__(self, tokens: np.ndarray) -> None:
-        self._tokens = tokens
-        keys = _token_keys(tokens) if len(tokens) else np.zeros(0, dtype=np.uint64)
-        order = np.argsort(keys, kind="stable")
-        sorted_keys = keys[order]
-        self.by_string = bool((sorted_keys[1:] == sorted_keys[:-1]).any())
-        if self.by_string:
-            order = np.argsort(tokens, kind="stable")
-            sorted_keys = tokens[order]
-        self._order = order
-        self._sorted_keys = sorted_keys
-
-    def first_duplicate(self) -> tuple[int, int] | None:
-        """Rows (earlier, later) of the first token (in row order) seen twice, or None."""
-        if not self.by_string:
-            return None
-        same = np.flatnonzero(self._sorted_keys[1:] == self._sorted_keys[:-1])
-        if len(same) == 0:
-            return None
-        later = self._order[same + 1]
-        pick = int(np.argmin(later))
-        return int(self._order[same[pick]]), int(later[pick])
-
-    def lookup(self, queries: np.ndarray) -> np.ndarray:
-        """int64 row of each query token (a numpy unicode array of any shape), -1 if absent."""
-        flat = queries.reshape(-1)
-        rows = np.full(len(flat), -1, dtype=np.int64)
-        if len(flat) == 0 or len(self._tokens) == 0:
-            return rows.reshape(queries.shape)
-        keys = flat if self.by_string else _token_keys(flat)
-        # Sorted queries make searchsorted walk the sorted keys in order (cache-friendly).
-        query_order = np.argsort(keys, kind="stable")
-        positions = np.empty(len(flat), dtype=np.int64)
-        positions[query_order] = np.searchsorted(self._sorted_keys, keys[query_order])
-        candidates = self._order[np.minimum(positions, len(self._order) - 1)]
-        found = (positions < len(self._order)) & (self._tokens[candidates] == flat)
-        rows[found] = candidates[found]
-        return rows.reshape(queries.shape)
-
-
-# --------------------------------------------------------------------------- parsing
-
-
-@contextmanager
-def _collector_paused() -> Iterator[None]:
-    """Pause the cyclic garbage collector.
-
-    Decoding a table allocates millions of containers; the collector would rescan them over
-    and over (about 3x slower on a trainval-sized table), and none of them forms a cycle.
-    """
-    was_enabled = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if was_enabled:
-            gc.enable()
-
-
-def _loads(data: bytes) -> Any:
-    if orjson is not None:
-        return orjson.loads(data)
-    return json.loads(data.decode("utf-8"))
-
-
-def _decode_document(path: Path, data: bytes) -> Any:
-    """``data`` decoded; invalid UTF-8 or JSON raises DataFormatError naming the file (with the
-    line and column)."""
-    try:
-        return _loads(data)
-    except UnicodeDecodeError as exc:
-        raise DataFormatError(path, f"not valid UTF-8 at byte {exc.start}") from None
-    except json.JSONDecodeError as exc:
-        raise DataFormatError(
-            path, f"invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}"
-        ) from None
-
-
-def read_json(path: Path) -> Any:
-    """The decoded JSON document at ``path``: orjson when installed, else the json module.
-
-    Invalid UTF-8 or JSON raises DataFormatError naming the file (with line and column).
-    A missing file raises FileNotFoundError; callers check existence first.
-    """
-    return _decode_document(path, path.read_bytes())
-
-
-def _record_runs(data: Any, chunk_bytes: int) -> list[tuple[int, int]] | None:
-    """Byte ranges [a, b) that split the top-level JSON array in ``data`` (bytes-like) into
-    runs of about ``chunk_bytes``, cut where one object ends and the next begins (``}``,
-    comma, ``{``); ``b"[" + data[a:b] + b"]"`` then holds the run's elements. None when
-    ``data`` does not look like one array.
-
-    The cuts are guesses (the pattern may sit inside a string or a nested object), verified
-    by decoding: a run decodes only if it starts and ends on element boundaries of the
-    document, because a JSON parser reads the run exactly as it reads the document from the
-    run's start. So if every run decodes, together they decode the whole document.
-    """
-    opening = _LIST_START.match(data)
-    close = data.rfind(b"]")
-    if opening is None or close < opening.end() or not _SPACE_TO_END.match(data, close + 1):
-        return None
-    runs, begin = [], opening.end()
-    while begin + chunk_bytes < close:
-        between = _BETWEEN_OBJECTS.search(data, begin + chunk_bytes, close)
-        if between is None:
-            break
-        runs.append((begin, between.start() + 1))
-        begin = between.end()
-    runs.append((begin, close))
-    return runs
-
-
-def _documents(path: Path) -> Iterator[Any]:
-    """The decoded table file, in pieces.
-
-    A file larger than _CHUNK_BYTES holding a JSON array comes as consecutive lists of its
-    elements, about _CHUNK_BYTES of text each: decoding a 1.3 GB sample_data.json whole
-    peaks at about 5x its size (the parser's own document plus the Python objects), in
-    pieces at one piece plus the file, memory-mapped (evictable). Any other file comes
-    whole, once, whatever its type.
-    """
-    if path.stat().st_size <= _CHUNK_BYTES:
-        yield read_json(path)
-        return
-    with open(path, "rb") as handle, mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ) as data:
-        runs = _record_runs(data, _CHUNK_BYTES)
-        if runs is None:
-            yield _decode_document(path, data[:])
-            return
-        consumed = 0
-        for begin, end in runs:
-            try:
-                piece = _loads(b"[" + data[begin:end] + b"]")
-            except (UnicodeDecodeError, json.JSONDecodeError):
-                # A malformed file, or a cut guessed inside a string or a nested object:
-                # decoding the whole file names the error (with its line), or else recovers
-                # the remaining elements.
-                whole = _decode_document(path, data[:])
-                assert isinstance(whole, list), type(whole)
-                yield whole[consumed:]
-                return
-            consumed += len(piece)
-            yield piece
+# --------------------------------------------------------------------------- decoding
 
 
 def _record_error(
@@ -267,12 +78,8 @@ def _diagnose(
     raise AssertionError(f"{path}: {field}: fast check rejected values the exact check accepts")
 
 
-def _types_within(values: Iterable, allowed: tuple[type, ...]) -> bool:
-    return set(map(type, values)) <= set(allowed)
-
-
 def _strings(values: list, allow_empty: bool) -> np.ndarray | None:
-    if not _types_within(values, (str,)):
+    if not types_within(values, (str,)):
         return None
     # An explicit width saves numpy a second pass to discover it.
     array = np.array(values, dtype=f"<U{max(map(len, values), default=1) or 1}")
@@ -282,9 +89,9 @@ def _strings(values: list, allow_empty: bool) -> np.ndarray | None:
 
 
 def _vectors(values: list, length: int) -> np.ndarray | None:
-    if not _types_within(values, (list,)) or not set(map(len, values)) <= {length}:
+    if not types_within(values, (list,)) or not set(map(len, values)) <= {length}:
         return None
-    if not _types_within(chain.from_iterable(values), (float, int)):
+    if not types_within(chain.from_iterable(values), (float, int)):
         return None
     try:
         array = np.fromiter(chain.from_iterable(values), dtype=np.float64,
@@ -307,7 +114,7 @@ def _intrinsics(values: list) -> np.ndarray | None:
 
 def _token_lists(values: list) -> tuple[np.ndarray, np.ndarray] | None:
     """(lengths (N,), all tokens flattened) of a list-of-tokens field."""
-    if not _types_within(values, (list,)):
+    if not types_within(values, (list,)):
         return None
     flat = _strings(list(chain.from_iterable(values)), allow_empty=False)
     if flat is None:
@@ -322,20 +129,20 @@ def _convert(values: list, kind: Field) -> Any:
     if kind.kind == "optional_ref":
         return _strings(values, allow_empty=True)
     if kind.kind == "str":
-        if not _types_within(values, (str,)):
+        if not types_within(values, (str,)):
             return None
         # Stored encoded: 1 byte per ASCII character instead of 4 (filenames of 2.6 M records).
         return np.array([value.encode(_TEXT_ENCODING, _TEXT_ERRORS) for value in values],
                         dtype=bytes)
     if kind.kind == "int":
-        if not _types_within(values, (int,)):
+        if not types_within(values, (int,)):
             return None
         try:
             return np.fromiter(values, dtype=np.int64, count=len(values))
         except OverflowError:
             return None
     if kind.kind == "bool":
-        return np.array(values, dtype=bool) if _types_within(values, (bool,)) else None
+        return np.array(values, dtype=bool) if types_within(values, (bool,)) else None
     if kind.kind == "vector":
         return _vectors(values, kind.length)
     if kind.kind == "intrinsic":
@@ -366,10 +173,10 @@ class _ParsedTable:
         self.columns: dict[str, Any] = {}
         self.rows: dict[str, np.ndarray] = {}
         self._unresolved: dict[str, Field] = {}
-        with _collector_paused():
+        with collector_paused():
             pieces = self._decode(parsed)
         self.tokens: np.ndarray = _concatenate(pieces.pop("token"))
-        self.index = _TokenIndex(self.tokens)
+        self.index = TokenIndex(self.tokens)
         self._check_unique()
         for field, kind in self.schema.items():
             if field == "token":
@@ -392,7 +199,7 @@ class _ParsedTable:
         fields = ["token", *(field for field in self.schema if field != "token")]
         pieces: dict[str, list] = {field: [] for field in fields}
         first = 0
-        for records in _documents(self.path):
+        for records in array_pieces(self.path, _CHUNK_BYTES):
             self._check_records(records, first)
             for field in fields:
                 kind = self.schema[field]
@@ -413,7 +220,7 @@ class _ParsedTable:
             raise DataFormatError(
                 self.path, f"top level must be a list of records, got {type(records).__name__}"
             )
-        if not _types_within(records, (dict,)):
+        if not types_within(records, (dict,)):
             i = next(i for i, record in enumerate(records) if not isinstance(record, dict))
             raise DataFormatError(
                 self.path,
@@ -461,7 +268,7 @@ class _ParsedTable:
             rows = _padded(*rows)
         self.rows[field] = rows
 
-    def _resolve(self, field: str, kind: Field, column: Any, index: _TokenIndex,
+    def _resolve(self, field: str, kind: Field, column: Any, index: TokenIndex,
                  record_tokens: np.ndarray) -> Any:
         """Rows of a reference column: (N,) for one token per record, -1 for ""; for a list of
         tokens per record (lengths (N,), rows of all the tokens). ``record_tokens`` (N,) name
@@ -519,7 +326,7 @@ class Table:
         name: str,
         path: Path,
         tokens: np.ndarray,
-        index: _TokenIndex,
+        index: TokenIndex,
         columns: dict[str, np.ndarray],
         rows: dict[str, np.ndarray],
         tables: Mapping[str, Table],
@@ -646,7 +453,7 @@ class NuScenesDB:
 
     def __init__(self, dataroot: str | Path, version: str) -> None:
         self.dataroot = Path(dataroot)
-        self.version = version
+        self.version = check_version_name(version)
         self.table_root = self.dataroot / version
         if not self.table_root.is_dir():
             raise DataFormatError(

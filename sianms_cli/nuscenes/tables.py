@@ -12,8 +12,11 @@ loader ignores it (and any other field outside the schema) and the writer never 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from typing import NamedTuple
+
+from sianms_cli.errors import SianmsError
 
 TABLE_NAMES: tuple[str, ...] = (
     "category",
@@ -31,6 +34,23 @@ TABLE_NAMES: tuple[str, ...] = (
     "map",
 )
 """The 13 tables, in the order nuscenes-devkit loads them."""
+
+_VERSION_NAME = re.compile(r"[A-Za-z0-9._-]+")
+
+
+def check_version_name(version: str) -> str:
+    """``version`` when it is a safe version folder name; otherwise a SianmsError naming ``--version``.
+
+    The version names the tables' folder inside the dataroot, so it must be one path component
+    of letters, digits, '.', '_' and '-', and not '.' or '..': then no version, however it was
+    typed, reads or writes outside the dataroot.
+    """
+    if not isinstance(version, str) or not _VERSION_NAME.fullmatch(version) or version in (".", ".."):
+        raise SianmsError(
+            f"--version must be one folder name of letters, digits, '.', '_' and '-' "
+            f"(not '.' or '..'), got {version!r}"
+        )
+    return version
 
 FIELD_KINDS = (
     "token", "str", "int", "bool", "vector", "intrinsic", "ref", "optional_ref", "ref_list",

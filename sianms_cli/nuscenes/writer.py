@@ -8,6 +8,7 @@ deterministic: the same records added in the same order give byte-identical file
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import io
 import json
@@ -225,21 +226,33 @@ class DatasetWriter:
         write_bytes(self.table_root / "splits.json", text.encode("utf-8"))
 
     def close(self) -> None:
-        """Finish every table (an empty one is written as ``[]``) and rename it into place."""
+        """Finish every table (an empty one is written as ``[]``) and rename it into place.
+
+        A failure here (disk full while flushing) aborts, so no partial table stays behind.
+        """
         if self._closed:
             return
-        for table in TABLE_NAMES:
-            handle = self._file(table)
-            handle.write("[]\n" if self._counts[table] == 0 else "\n]\n")
-            handle.close()
-        for table in TABLE_NAMES:
-            os.replace(self._partial_path(table), self._final_path(table))
+        try:
+            for table in TABLE_NAMES:
+                handle = self._file(table)
+                handle.write("[]\n" if self._counts[table] == 0 else "\n]\n")
+                handle.close()
+            for table in TABLE_NAMES:
+                os.replace(self._partial_path(table), self._final_path(table))
+        except BaseException:
+            self.abort()
+            raise
         self._closed = True
 
     def abort(self) -> None:
-        """Stop writing and delete the partial table files; finished files are left alone."""
+        """Stop writing and delete the partial table files; finished files are left alone.
+
+        Closing a handle can fail again (its buffer cannot be flushed to a full disk); the
+        file is deleted all the same.
+        """
         for table, handle in self._files.items():
-            handle.close()
+            with contextlib.suppress(OSError):
+                handle.close()
             self._partial_path(table).unlink(missing_ok=True)
         self._files.clear()
         self._closed = True

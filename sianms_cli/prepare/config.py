@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
-from pathlib import Path
 from typing import Any
 
 from sianms_cli.detection2d.backbones import BACKBONES
 from sianms_cli.detection2d.classes import check_classes
+from sianms_cli.detection2d.detectors import parse_detector
 from sianms_cli.errors import SianmsError
 from sianms_cli.io import sha256_of
 from sianms_cli.nuscenes.classes import PAPER_CLASSES
+from sianms_cli.nuscenes.tables import check_version_name
 
 
 @dataclass(frozen=True)
@@ -34,9 +36,9 @@ class PrepareConfig:
     max_depth: float | None = None
 
     def __post_init__(self) -> None:
+        check_version_name(self.version)
         object.__setattr__(self, "classes", check_classes(self.classes))
-        if not (self.detector == "simulated" or self.detector.startswith("file:")):
-            raise SianmsError(f"unknown detector '{self.detector}'; expected 'simulated' or 'file:PATH'")
+        parse_detector(self.detector)
         if self.backbone not in BACKBONES:
             raise SianmsError(f"unknown backbone '{self.backbone}'; expected one of {', '.join(BACKBONES)}")
         if self.roi_size < 1:
@@ -45,20 +47,31 @@ class PrepareConfig:
             raise SianmsError(f"--sweeps must be >= 0, got {self.sweeps}")
         if not 0 < self.iou_threshold <= 1:
             raise SianmsError(f"--iou-threshold must be in (0, 1], got {self.iou_threshold}")
+        if not (math.isfinite(self.min_depth) and self.min_depth >= 0):
+            raise SianmsError(f"--min-depth must be a finite number >= 0, got {self.min_depth}")
+        if self.max_depth is not None and not self.max_depth > self.min_depth:
+            raise SianmsError(f"--max-depth must be greater than --min-depth ({self.min_depth}), got {self.max_depth}")
 
     @property
     def fills_missed(self) -> bool:
         return ("train" in self.split) if self.fill_missed is None else self.fill_missed
 
-    def resolved(self) -> dict[str, Any]:
-        """The config as written to the manifest: derived values filled in, files fingerprinted."""
+    def resolved(self, dataset_fingerprint: str, split_scenes: list[str]) -> dict[str, Any]:
+        """The config as written to the manifest: derived values filled in, inputs fingerprinted.
+
+        Inputs enter by content, not by path: the dataset by ``dataset_fingerprint``, the split
+        by its scenes, a detections file and backbone weights by their SHA-256. So a cache stays
+        valid when its inputs are moved, and becomes stale when one of them changes.
+        """
         data = asdict(self)
+        del data["dataroot"]
         data["classes"] = list(self.classes)
         data["fill_missed"] = self.fills_missed
-        data["dataroot"] = str(Path(self.dataroot).resolve())
-        if self.detector.startswith("file:"):
-            path = Path(self.detector[5:])
-            data["detector_sha256"] = sha256_of(path) if path.is_file() else None
-        if self.weights is not None and Path(self.weights).is_file():
-            data["weights_sha256"] = sha256_of(Path(self.weights))
+        data["dataset_sha256"] = dataset_fingerprint
+        data["split_scenes"] = list(split_scenes)
+        detections_file = parse_detector(self.detector).file
+        if detections_file is not None:
+            data["detector"] = "file"
+            data["detector_sha256"] = sha256_of(detections_file)
+        data["weights"] = None if self.weights is None else "sha256:" + sha256_of(self.weights)
         return data

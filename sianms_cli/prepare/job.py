@@ -7,9 +7,8 @@ frustum of each detection; then the pairs of detections of one instance in two c
 cameras. Written under ``out`` as three Parquet datasets, one file per scene (the shard),
 and a manifest (see :mod:`sianms_cli.data.cache`).
 
-This module sits above ``detection2d/`` and ``data/`` and below ``cli/``: it is the
-orchestration only. It lives at the package top rather than in ``pipelines/``, which DESIGN.md
-gives to evaluation-time duplicate handling.
+This module is the orchestration only: which shards to write, in which process, under which
+lock, and the manifest; :mod:`.sample` computes one key frame.
 
 Determinism: every random draw comes from a generator seeded with (seed, sample_data token),
 so the bytes written depend neither on ``workers`` nor on ``shard``, nor on whether the run
@@ -18,19 +17,25 @@ was interrupted and resumed.
 
 from __future__ import annotations
 
-import multiprocessing
 import shutil
+from contextlib import closing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
-import torch
+import numpy as np
 
 from sianms_cli.data.cache import (
-    MANIFEST, SHARDS, ShardWriter, clear_shard, read_manifest, shard_done, write_manifest,
+    FOLDER_LOCK, MANIFEST, SHARDS, ShardWriter, clear_shard, read_manifest, shard_done, shard_lock_path,
+    write_manifest,
 )
 from sianms_cli.data.schemas import DATASETS
-from sianms_cli.errors import OutputExistsError, SianmsError
+from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
+from sianms_cli.io import FolderBusyError, exclusive_lock, make_folder, release_lock, try_lock
+from sianms_cli.nuscenes.fingerprint import dataset_fingerprint
+from sianms_cli.nuscenes.tables import CAMERA_CHANNELS
+from sianms_cli.processes import worker_pool
+from sianms_cli.progress import SILENT, Progress
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.rigs import sample_rigs
 from sianms_cli.nuscenes.splits import split_scene_names
@@ -40,10 +45,13 @@ from sianms_cli.prepare.sample import Preparer
 
 @dataclass
 class PrepareResult:
+    """What one run did: the shards it wrote, found finished, or left to another run."""
+
     out: Path
     manifest: dict[str, Any]
     shards_run: list[str] = field(default_factory=list)
     shards_skipped: list[str] = field(default_factory=list)
+    shards_busy: list[str] = field(default_factory=list)
 
 
 def parse_shard(text: str | None) -> tuple[int, int]:
@@ -74,12 +82,121 @@ def split_scenes(db: NuScenesDB, split: str) -> list[tuple[str, str]]:
     return chosen
 
 
+# ------------------------------------------------------------------------------ inputs
+
+
+def check_inputs(db: NuScenesDB, config: PrepareConfig, scenes: list[tuple[str, str]]) -> None:
+    """Refuse, before anything is written, a dataset the run would fail on part-way.
+
+    Every key-frame camera image and LiDAR sweep of the scenes must exist (a dataset written
+    with ``synth --sensors none`` has tables only), and ``--sweeps`` needs LiDAR sweeps
+    between key frames: without them the previous *key frames*, 0.5 s apart, would be
+    stacked as if they were 0.05 s sweeps.
+    """
+    sample_data = db.table("sample_data")
+    key = sample_data.column("is_key_frame")
+    channels = db.sample_data_channels()
+    wanted = np.isin(channels, ("LIDAR_TOP", *CAMERA_CHANNELS))
+    scene_of_sample = db.table("sample").rows("scene_token")
+    chosen_scenes = db.table("scene").indices([token for token, _ in scenes])
+    rows = np.flatnonzero(key & wanted & np.isin(scene_of_sample[sample_data.rows("sample_token")], chosen_scenes))
+    filenames = sample_data.column("filename")
+    for row in rows.tolist():
+        path = db.dataroot / str(filenames[row])
+        if not path.is_file():
+            raise DataFormatError(
+                path, "sensor file not found (a dataset written with `sianms synth --sensors none` has "
+                "tables only; prepare needs its images and LiDAR)", token=str(sample_data.tokens[row]),
+                field="filename")
+    if config.sweeps > 0 and not np.any(~key & (channels == "LIDAR_TOP")):
+        raise SianmsError(
+            f"--sweeps {config.sweeps}: {db.table_root} has no LiDAR sweeps between key frames "
+            "(sample_data records of LIDAR_TOP with is_key_frame false); use --sweeps 0")
+
+
+# ------------------------------------------------------------------------------ the cache folder
+
+
+def refuse_foreign_folder(out: Path) -> None:
+    """Refuse, without touching it, a folder that holds anything but a sianms cache."""
+    if out.is_dir() and read_manifest(out) is None and any(out.iterdir()):
+        raise OutputExistsError(
+            f"{out} is not empty and is not a sianms cache (no {MANIFEST}); choose another --out")
+
+
+def claim_output(out: Path, resolved: dict[str, Any], expected: list[str], dataroot: Path, overwrite: bool) -> None:
+    """Make ``out`` this config's cache, or check that it is; write its manifest.
+
+    Runs under the folder lock, so two runs starting together agree on what ``out`` holds.
+    An empty or absent folder becomes a new cache. A cache of the same config is resumed.
+    A cache of another config is refused unless ``overwrite``, and ``overwrite`` deletes only
+    a folder recognisable as a sianms cache (its manifest), and only while no other run is
+    writing one of its shards. Anything else is refused: a command deletes only its own.
+    """
+    manifest = read_manifest(out)
+    entries = [entry.name for entry in out.iterdir() if entry.name != FOLDER_LOCK]
+    if manifest is None and entries:
+        raise OutputExistsError(
+            f"{out} is not empty and is not a sianms cache (no {MANIFEST}); choose another --out")
+    if manifest is not None and manifest["config"] != resolved:
+        if not overwrite:
+            stored = manifest["config"]
+            differing = sorted(key for key in set(resolved) | set(stored) if resolved.get(key) != stored.get(key))
+            raise OutputExistsError(
+                f"{out} holds a cache prepared with another config (differs in: {', '.join(differing)}); "
+                "pass --overwrite to replace it or choose another --out")
+    if manifest is not None and overwrite:
+        _delete_cache_content(out)
+    write_manifest(out, resolved, expected, dataroot)
+
+
+def _delete_cache_content(out: Path) -> None:
+    """Remove a cache's shards; the manifest stays until the caller rewrites it, so an
+    interrupted overwrite leaves a folder still recognisable as a cache."""
+    held = []
+    for lock_path in sorted((out / SHARDS).glob("*.lock")):
+        descriptor = try_lock(lock_path)
+        if descriptor is None:
+            raise FolderBusyError(f"{out}: shard {lock_path.stem} is being written by another sianms process; "
+                                  "wait for it before --overwrite")
+        held.append(descriptor)
+    try:
+        for name in (*DATASETS, SHARDS):
+            shutil.rmtree(out / name, ignore_errors=True)
+    finally:
+        for descriptor in held:
+            release_lock(descriptor)
+
+
+def refresh_manifest(out: Path, resolved: dict[str, Any], expected: list[str], dataroot: Path) -> dict[str, Any]:
+    """Rewrite the manifest from the finished shards, under the folder lock."""
+    with exclusive_lock(out / FOLDER_LOCK, what=str(out), blocking=True):
+        return write_manifest(out, resolved, expected, dataroot)
+
+
 # ------------------------------------------------------------------------------ one shard
 
 
 def write_scene_shard(preparer: Preparer, out: Path, scene_token: str, shard: str,
-                      on_sample: Callable[[], None] | None = None) -> dict:
-    """Write one scene's shard; return its completion record."""
+                      on_sample: Callable[[], None] | None = None) -> str:
+    """Write one scene's shard unless it is finished or another run holds it.
+
+    Returns "written", "finished" (found done) or "busy" (another run is writing it).
+    """
+    lock = try_lock(shard_lock_path(out, shard))
+    if lock is None:
+        return "busy"
+    try:
+        if shard_done(out, shard):
+            return "finished"
+        _write_shard(preparer, out, scene_token, shard, on_sample)
+        return "written"
+    finally:
+        release_lock(lock)
+
+
+def _write_shard(preparer: Preparer, out: Path, scene_token: str, shard: str,
+                 on_sample: Callable[[], None] | None) -> dict:
     db = preparer.db
     clear_shard(out, shard)
     samples = db.sample_tokens_of_scene(scene_token)
@@ -102,93 +219,85 @@ _WORKER: Preparer | None = None
 
 def _init_worker(config: PrepareConfig) -> None:
     global _WORKER
+    import torch
+
     torch.set_num_threads(1)
     _WORKER = Preparer(config)
 
 
-def _run_in_worker(args: tuple[str, str, str]) -> tuple[str, int]:
+def _run_in_worker(args: tuple[str, str, str]) -> tuple[str, str]:
     out, scene_token, shard = args
     assert _WORKER is not None
-    record = write_scene_shard(_WORKER, Path(out), scene_token, shard)
-    return shard, record["samples"]
+    return shard, write_scene_shard(_WORKER, Path(out), scene_token, shard)
 
 
 # ------------------------------------------------------------------------------ entry point
 
 
-def prepare(
+def run(
     config: PrepareConfig,
     out: str | Path,
+    *,
+    overwrite: bool = False,
+    progress: Progress = SILENT,
     workers: int = 1,
     shard: str | None = None,
-    overwrite: bool = False,
-    progress: bool = True,
 ) -> PrepareResult:
     """Prepare the cache for ``config`` under ``out`` (see the module docstring).
 
     A cache that holds finished shards of the same resolved config is resumed: finished shards
-    are skipped, unfinished ones rewritten. A cache made with another config is refused unless
-    ``overwrite``; so is a non-empty folder that is not a cache.
+    are skipped, unfinished ones rewritten. Runs into the same ``out`` cooperate shard by
+    shard (each shard is written by the run that locks it; the others skip it), so array jobs
+    with ``shard`` and plain reruns can share a cache. A cache made with another config is
+    refused unless ``overwrite``; a non-empty folder that is not a cache is always refused.
 
     Args:
         config: what to compute.
         out: cache folder.
+        overwrite: replace a cache of another config.
+        progress: told the number of samples, then each one done.
         workers: processes (the output does not depend on it).
         shard: "K/N": this run does the scenes whose position in the split is K mod N.
-        overwrite: delete an existing cache first.
-        progress: show a tqdm bar over samples.
     """
     k, n = parse_shard(shard)
     if workers < 1:
         raise SianmsError(f"--workers must be at least 1, got {workers}")
     out = Path(out)
-    resolved = config.resolved()
+    if out.exists() and not out.is_dir():
+        raise OutputExistsError(f"{out} exists and is not a folder; choose another --out")
     db = NuScenesDB(config.dataroot, config.version)
     scenes = split_scenes(db, config.split)
-    preparer = Preparer(config, db)  # validates detector file and weights before anything is written
-    _claim_output(out, resolved, overwrite)
-    expected = [name for _, name in scenes]
     mine = [(token, name) for i, (token, name) in enumerate(scenes) if i % n == k]
+    check_inputs(db, config, mine)
+    preparer = Preparer(config, db)  # validates the detector file and the weights before anything is written
+    expected = [name for _, name in scenes]
+    resolved = config.resolved(dataset_fingerprint(db.table_root), expected)
+    refuse_foreign_folder(out)
+    make_folder(out)
+    with exclusive_lock(out / FOLDER_LOCK, what=str(out), blocking=True):
+        claim_output(out, resolved, expected, db.dataroot, overwrite)
     todo = [(token, name) for token, name in mine if not shard_done(out, name)]
-    skipped = [name for token, name in mine if shard_done(out, name)]
-    total = sum(len(db.sample_tokens_of_scene(token)) for token, _ in todo)
-    from tqdm import tqdm
-
-    with tqdm(total=total, unit="sample", disable=not progress, desc="prepare") as bar:
-        if workers == 1 or len(todo) <= 1:
-            for token, name in todo:
-                write_scene_shard(preparer, out, token, name, on_sample=lambda: bar.update(1))
-        else:
-            del preparer
-            context = multiprocessing.get_context("spawn")
-            with context.Pool(min(workers, len(todo)), initializer=_init_worker, initargs=(config,)) as pool:
-                for _, samples in pool.imap_unordered(_run_in_worker, [(str(out), t, s) for t, s in todo]):
-                    bar.update(samples)
-    manifest = write_manifest(out, resolved, expected)
-    return PrepareResult(out, manifest, [name for _, name in todo], skipped)
+    result = PrepareResult(out, {}, shards_skipped=[name for _, name in mine if shard_done(out, name)])
+    progress.start(sum(len(db.sample_tokens_of_scene(token)) for token, _ in todo), "sample", "prepare")
+    outcomes = {"written": result.shards_run, "finished": result.shards_skipped, "busy": result.shards_busy}
+    try:
+        with closing(_run_shards(preparer, config, out, todo, workers, progress)) as shards:
+            for name, outcome in shards:
+                outcomes[outcome].append(name)
+    finally:
+        result.manifest = refresh_manifest(out, resolved, expected, db.dataroot)
+    return result
 
 
-def _claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> None:
-    """Create ``out`` or check it is this config's cache; write the manifest with the config."""
-    manifest = read_manifest(out) if out.is_dir() else None
-    if out.exists() and not out.is_dir():
-        raise OutputExistsError(f"{out} exists and is not a folder")
-    if overwrite and out.is_dir():
-        if manifest is None and any(out.iterdir()):
-            raise OutputExistsError(f"{out} is not a sianms cache (no {MANIFEST}); refusing to delete it")
-        for name in (*DATASETS, SHARDS):
-            shutil.rmtree(out / name, ignore_errors=True)
-        (out / MANIFEST).unlink(missing_ok=True)
-        manifest = None
-    if manifest is not None:
-        if manifest.get("config") != resolved:
-            differing = sorted(key for key in set(resolved) | set(manifest.get("config", {}))
-                               if resolved.get(key) != manifest.get("config", {}).get(key))
-            raise OutputExistsError(
-                f"{out} holds a cache prepared with another config (differs in: {', '.join(differing)}); "
-                "pass --overwrite or choose another --out")
+def _run_shards(preparer: Preparer, config: PrepareConfig, out: Path, todo: list[tuple[str, str]],
+                workers: int, progress: Progress) -> Iterator[tuple[str, str]]:
+    """(shard, outcome) of each shard to do, in this process or in ``workers`` processes."""
+    if workers == 1 or len(todo) <= 1:
+        for token, name in todo:
+            yield name, write_scene_shard(preparer, out, token, name, on_sample=progress.advance)
         return
-    if out.is_dir() and any(out.iterdir()):
-        raise OutputExistsError(f"{out} exists and is not empty; pass --overwrite or choose another --out")
-    out.mkdir(parents=True, exist_ok=True)
-    write_manifest(out, resolved, [])
+    samples = {name: len(preparer.db.sample_tokens_of_scene(token)) for token, name in todo}
+    with worker_pool(min(workers, len(todo)), _init_worker, (config,)) as pool:
+        for name, outcome in pool.imap_unordered(_run_in_worker, [(str(out), t, s) for t, s in todo]):
+            progress.advance(samples[name])
+            yield name, outcome

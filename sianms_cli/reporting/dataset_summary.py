@@ -7,19 +7,49 @@ so a synthetic dataroot can be compared with the real one line by line.
 from __future__ import annotations
 
 from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from sianms_cli.geometry.transforms import apply_transform, invert_transform, make_transform
+from sianms_cli.errors import SianmsError
+from sianms_cli.io import check_writable_output, write_json
+from sianms_cli.progress import SILENT, Progress
 from sianms_cli.nuscenes.loader import NuScenesDB
-from sianms_cli.nuscenes.rigs import sample_rigs
+from sianms_cli.nuscenes.overlap import box_overlap_pairs, centers_in_ego, lidar_ego_poses
+from sianms_cli.nuscenes.tables import check_version_name
 
 CAR = "vehicle.car"
 CAR_EVAL_RANGE = 50.0  # the devkit's class range for cars (detection_cvpr_2019)
 VISIBILITY_LEVELS = {"1": "v0-40", "2": "v40-60", "3": "v60-80", "4": "v80-100"}
 
 
-def summarize(db: NuScenesDB, max_sweeps: int = 200) -> dict:
+@dataclass(frozen=True)
+class InfoConfig:
+    """What `sianms info` reads."""
+
+    dataroot: str
+    version: str = "v1.0-mini"
+    max_sweeps: int = 200  # LiDAR key-frame files read for the points-per-sweep figure; 0: none
+
+    def __post_init__(self) -> None:
+        check_version_name(self.version)
+        if self.max_sweeps < 0:
+            raise SianmsError(f"--max-sweeps must be >= 0 (0 skips the figure), got {self.max_sweeps}")
+
+
+def run(config: InfoConfig, out: str | Path | None = None, *, overwrite: bool = False,
+        progress: Progress = SILENT) -> dict:
+    """The summary of ``config``'s dataset; also written as JSON to ``out`` when given."""
+    if out is not None:
+        check_writable_output(out, overwrite=overwrite)
+    summary = summarize(NuScenesDB(config.dataroot, config.version), config.max_sweeps, progress)
+    if out is not None:
+        write_json(out, summary)
+    return summary
+
+
+def summarize(db: NuScenesDB, max_sweeps: int = 200, progress: Progress = SILENT) -> dict:
     """Counts and distributions of one dataroot/version as a JSON-ready dict."""
     annotations = db.table("sample_annotation")
     categories = db.annotation_category_names()
@@ -47,7 +77,8 @@ def summarize(db: NuScenesDB, max_sweeps: int = 200) -> dict:
         "share_annotations_without_lidar_points": _share(lidar_points == 0),
         "visibility_shares": _visibility_shares(annotations),
         "vehicle_attribute_shares": _attribute_shares(db, "vehicle."),
-        "lidar_points_per_sweep": _lidar_points_per_sweep(db, max_sweeps),
+        "lidar_points_per_sweep": _lidar_points_per_sweep(db, max_sweeps, progress),
+        "max_sweeps": max_sweeps,
         "car_share_in_overlap": _share(overlap[cars]),
         "car_share_in_overlap_within_50m_with_points": _share(overlap[cars_in_range]),
         "car_annotations_in_overlap": int(np.sum(overlap & cars)),
@@ -89,10 +120,11 @@ def _attribute_shares(db: NuScenesDB, prefix: str) -> dict:
     return {name: count / len(chosen) for name, count in sorted(counts.items())} if chosen else {}
 
 
-def _lidar_points_per_sweep(db: NuScenesDB, max_sweeps: int) -> dict | None:
+def _lidar_points_per_sweep(db: NuScenesDB, max_sweeps: int, progress: Progress) -> dict | None:
     """Points per LIDAR_TOP keyframe file, over up to ``max_sweeps`` evenly spread files.
 
-    None when the dataroot has no LiDAR files (a tables-only dataset).
+    None when not asked for (``max_sweeps`` 0) or when the dataroot has no LiDAR files (a
+    tables-only dataset).
     """
     sample_data = db.table("sample_data")
     tokens = sample_data.tokens[sample_data.column("is_key_frame") & (db.sample_data_channels() == "LIDAR_TOP")]
@@ -101,29 +133,26 @@ def _lidar_points_per_sweep(db: NuScenesDB, max_sweeps: int) -> dict | None:
     chosen = [tokens[i] for i in np.unique(np.linspace(0, len(tokens) - 1, min(max_sweeps, len(tokens))).astype(int))]
     if not db.data_path(chosen[0]).exists():
         return None
-    counts = np.array([len(db.read_lidar(token)) for token in chosen])
+    progress.start(len(chosen), "sweep", "reading LiDAR")
+    counts = np.zeros(len(chosen), dtype=np.int64)
+    for i, token in enumerate(chosen):
+        counts[i] = len(db.read_lidar(token))
+        progress.advance()
     return {"files": len(chosen), **_distribution(counts)}
 
 
 def _overlap_and_distance(db: NuScenesDB) -> tuple[np.ndarray, np.ndarray]:
-    """For every annotation: is its centre in the camera-overlap region of its keyframe
-    (``CameraRig.in_overlap``), and its xy distance to the ego (the devkit's range)."""
+    """For every annotation: is its centre in the camera-overlap region of its keyframe (THE
+    rule, :func:`sianms_cli.nuscenes.overlap.box_overlap_pairs`, as prepare and metrics decide
+    it), and its xy distance to the ego of its LIDAR_TOP key frame (the devkit's range; inf
+    without one)."""
     annotations = db.table("sample_annotation")
     centers = annotations.column("translation")
-    overlap = np.zeros(len(annotations), dtype=bool)
-    distance = np.full(len(annotations), np.inf)
-    sample_tokens = db.table("sample").tokens
-    rigs, rig_of_sample = sample_rigs(db, sample_tokens)
-    for sample_token, rig in zip(sample_tokens, rig_of_sample.tolist()):
-        rows = db.sample_annotation_rows(sample_token)
-        data = db.keyframe_data(sample_token)
-        if len(rows) == 0 or "LIDAR_TOP" not in data:
-            continue
-        rotation, translation = db.ego_pose_of(data["LIDAR_TOP"])
-        centers_ego = apply_transform(invert_transform(make_transform(rotation, translation)), centers[rows])
-        distance[rows] = np.hypot(centers_ego[:, 0], centers_ego[:, 1])
-        if rig >= 0:
-            overlap[rows] = rigs[rig].in_overlap(centers_ego)
+    box_sample = annotations.rows("sample_token")
+    overlap = box_overlap_pairs(db, db.table("sample").tokens, box_sample, centers).bits != 0
+    rotation, translation, found = lidar_ego_poses(db, np.arange(len(db.table("sample"))))
+    centers_ego = centers_in_ego(centers, box_sample, rotation, translation)
+    distance = np.where(found[box_sample], np.hypot(centers_ego[:, 0], centers_ego[:, 1]), np.inf)
     return overlap, distance
 
 
@@ -155,7 +184,8 @@ def format_summary(summary: dict) -> str:
     lines.append(
         "  LiDAR points per sweep: " + (
             f"mean {sweeps['mean']:.0f}, p10-p90 {sweeps['p10']:.0f}-{sweeps['p90']:.0f}, "
-            f"max {sweeps['max']} over {sweeps['files']} keyframe files" if sweeps else "no LiDAR files"))
+            f"max {sweeps['max']} over {sweeps['files']} keyframe files" if sweeps
+            else "not measured (--max-sweeps 0)" if summary["max_sweeps"] == 0 else "no LiDAR files"))
     lines.append(
         f"  cars in the camera-overlap region: {_percent(summary['car_share_in_overlap'])} of all car annotations, "
         f"{_percent(summary['car_share_in_overlap_within_50m_with_points'])} of those within 50 m with LiDAR points")

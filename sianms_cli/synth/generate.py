@@ -8,31 +8,35 @@ scene, whatever the number of scenes.
 
 Each scene draws from its own random generator seeded by ``(seed, scene index)``, so the
 same seed gives byte-identical files and a scene does not change when others are added.
+
+The dataroot is built in a hidden staging folder beside ``out`` and published (renamed into
+place) only when complete, with a marker file, :data:`MARKER_NAME`, at its top. The marker
+is what lets a later run replace it: ``overwrite`` replaces only an empty folder or one that
+holds the marker and nothing but what synth writes, never a folder with anything else in it.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import datetime as dt
-import os
-import shutil
-import tempfile
-from concurrent.futures import ProcessPoolExecutor
+from contextlib import closing, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterator
 
 import numpy as np
-from tqdm import tqdm
 
-from sianms_cli.errors import OutputExistsError, SianmsError
+from sianms_cli import __version__, io
+from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
 from sianms_cli.geometry.boxes import count_points_in_boxes
 from sianms_cli.geometry.quaternion import matrix_to_quat, yaw_to_quat
 from sianms_cli.geometry.transforms import apply_transform, make_transform
 from sianms_cli.nuscenes.splits import splits_for_version
-from sianms_cli.nuscenes.tables import CAMERA_CHANNELS, SENSORS
+from sianms_cli.nuscenes.tables import CAMERA_CHANNELS, SENSORS, check_version_name
 from sianms_cli.nuscenes.sensors import write_jpeg, write_pcd_bin
 from sianms_cli.nuscenes.writer import DatasetWriter, attribute_token, category_token, make_token
+from sianms_cli.processes import worker_pool
+from sianms_cli.progress import SILENT, Progress
 from sianms_cli.synth.appearance import camera_style, sample_appearance
 from sianms_cli.synth.camera import render_camera
 from sianms_cli.synth.lidar import scan_lidar
@@ -55,6 +59,10 @@ from sianms_cli.synth.world import (
     plan_scene,
 )
 
+MARKER_NAME = "sianms-synth.json"  # provenance marker at the dataroot's top
+MARKER_KIND = "sianms synth dataroot"
+DATAROOT_FOLDERS = ("samples", "sweeps", "maps")  # a dataroot's data folders (synth writes no sweeps yet)
+
 SENSOR_MODES = ("all", "none")
 RENDER_RADIUS = 130.0  # objects farther than this from the ego are not drawn or scanned
 SHAPE_MARGIN = 0.04  # annotated boxes enclose the object's surface with this margin (m)
@@ -73,7 +81,11 @@ LOCATION_SHARES = (0.55, 0.215, 0.135, 0.10)  # keyframes by location, nuScenes 
 
 @dataclass(frozen=True)
 class SynthConfig:
-    """What `sianms synth` writes. Defaults give a v1.0-mini-like dataset."""
+    """What `sianms synth` writes. Defaults give a v1.0-mini-like dataset.
+
+    Checked when built, so a bad option fails before anything is written; messages name
+    the CLI flag.
+    """
 
     version: str = "v1.0-mini"
     scenes: int | None = None  # None: 10 for v1.0-mini, required otherwise
@@ -82,6 +94,19 @@ class SynthConfig:
     sensors: str = "all"
     scene_seconds: float = SCENE_SECONDS  # shorter scenes are the first keyframes of full ones
 
+    def __post_init__(self) -> None:
+        check_version_name(self.version)
+        if not 0 < self.scene_seconds <= SCENE_SECONDS or self.keyframes < 1:
+            raise SianmsError(f"--scene-seconds must be in (0, {SCENE_SECONDS:g}] and hold at least one keyframe "
+                              f"(one every {1 / KEYFRAME_HZ:g} s), got {self.scene_seconds}")
+        if self.sensors not in SENSOR_MODES:
+            raise SianmsError(f"--sensors must be one of {', '.join(SENSOR_MODES)}, got '{self.sensors}'")
+        if not 0.05 <= self.image_scale <= 1.0:
+            raise SianmsError(f"--image-scale must be in [0.05, 1], got {self.image_scale}")
+        if self.seed < 0:
+            raise SianmsError(f"--seed must be at least 0, got {self.seed}")
+        self.scene_names()  # --scenes: at least 1, no more than the version has, required beyond mini
+
     @property
     def keyframes(self) -> int:
         return int(round(self.scene_seconds * KEYFRAME_HZ))
@@ -89,6 +114,16 @@ class SynthConfig:
     def scene_names(self) -> list[str]:
         """Scene names, chosen so the devkit's predefined splits resolve (see module doc)."""
         return scene_names_for(self.version, self.scenes)
+
+
+@dataclass(frozen=True)
+class SynthResult:
+    """What :func:`run` wrote: the dataroot, its version folder and its size."""
+
+    out: Path
+    version: str
+    scenes: int
+    samples: int
 
 
 def scene_names_for(version: str, count: int | None) -> list[str]:
@@ -127,77 +162,157 @@ def custom_splits(names: list[str]) -> dict[str, list[str]]:
     return {"synth_train": names[: len(names) - val_count], "synth_val": names[len(names) - val_count:]}
 
 
-def synthesize(
-    out: Path,
+def run(
     config: SynthConfig,
+    out: str | Path,
     *,
     overwrite: bool = False,
-    progress: bool = True,
+    progress: Progress = SILENT,
     workers: int = 1,
-) -> Path:
-    """Write the dataset to ``out`` (the dataroot) and return it.
+) -> SynthResult:
+    """Write the dataset to ``out`` (the dataroot).
 
-    Everything is written to a staging folder beside ``out`` and moved into place when
-    complete, so an interrupted run never leaves a dataroot that looks finished.
-    ``workers`` processes sense scenes in parallel; records are still written in scene
-    order, so the output does not depend on the number of workers.
+    Everything is written to a staging folder beside ``out`` and published when complete;
+    a failure or an interrupt stops the workers, then removes the staging folder, so no
+    half-written dataroot is ever left. ``workers`` processes sense scenes in parallel;
+    records are still written in scene order, so the output does not depend on ``workers``.
     """
-    if not 0 < config.scene_seconds <= SCENE_SECONDS or config.keyframes < 1:
-        raise SianmsError(f"--scene-seconds must be in (0, {SCENE_SECONDS:g}], got {config.scene_seconds}")
     if workers < 1:
         raise SianmsError(f"--workers must be at least 1, got {workers}")
-    if config.sensors not in SENSOR_MODES:
-        raise SianmsError(f"--sensors must be one of {', '.join(SENSOR_MODES)}, got '{config.sensors}'")
-    if not 0.05 <= config.image_scale <= 1.0:
-        raise SianmsError(f"--image-scale must be in [0.05, 1], got {config.image_scale}")
+    out = Path(out).resolve()  # through a symbolic link: replace the folder it names, not the link
+    _check_output(out, overwrite=overwrite)
     names = config.scene_names()
-    out = Path(out)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:
-        raise OutputExistsError(f"{out}: exists and is not empty; pass --overwrite to replace it")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
+    staging = _make_staging_folder(out)
     try:
-        with DatasetWriter(staging, config.version) as writer:
-            writer.add_static_tables()
-            if not splits_for_version(config.version):
-                writer.write_splits(custom_splits(names))
-            _write_maps(writer, config)
-            jobs = [(staging, config, index, name) for index, name in enumerate(names)]
-            with tqdm(total=len(names) * config.keyframes, unit="sample", desc="synth",
-                      disable=not progress) as bar:
-                for records in _run_scenes(jobs, workers, bar):
-                    for table, record in records:
-                        writer.add(table, record)
-        _move_into_place(staging, out)
+        with _errors_name_files_under(out, staging):
+            _write_dataset(staging, config, names, progress, workers)
+        _check_output(out, overwrite=overwrite)  # again: OUT may have changed during a long run
+        io.publish_folder(staging, out)
     except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
+        io.remove_folder(staging)
         raise
-    return out
+    return SynthResult(out, config.version, len(names), len(names) * config.keyframes)
 
 
-def _run_scenes(jobs: list[tuple], workers: int, bar: tqdm) -> Iterator[list[tuple[str, dict]]]:
-    """Records of every scene, in scene order, sensed in ``workers`` processes.
+def _make_staging_folder(out: Path) -> Path:
+    """:func:`io.staging_folder` beside ``out``; when it cannot be made, the error names ``out``.
 
-    The bar advances per keyframe in this process, per scene from worker processes.
+    The hidden staging name means nothing to the user who asked for ``out``; the OS error
+    io converted (kept as the error's context) gives the cause.
+    """
+    try:
+        return io.staging_folder(out)
+    except io.OutputError as error:
+        if not isinstance(error.__context__, OSError):
+            raise
+        raise io.OutputError(f"cannot write {io.describe_os_error(error.__context__, out)}") from None
+
+
+def _check_output(out: Path, *, overwrite: bool) -> None:
+    """Refuse an ``out`` that publishing must not replace (see the module doc)."""
+    if io.is_inside_working_folder(out):
+        raise SianmsError(f"{out}: is the working folder or one of its parents; synth replaces its output "
+                          "folder as a whole, so give --out a folder below it")
+    if not out.exists():
+        return
+    if not out.is_dir():
+        raise OutputExistsError(f"{out}: exists and is not a folder")
+    entries = sorted(out.iterdir())
+    if not entries:
+        return
+    if not overwrite:
+        raise OutputExistsError(f"{out}: exists and is not empty; pass --overwrite to replace an earlier "
+                                "sianms synth output")
+    version = _marked_version(out / MARKER_NAME)
+    if version is None:
+        raise OutputExistsError(f"{out}: not replaced: it has no valid {MARKER_NAME}, so it is not an earlier "
+                                f"sianms synth output (it holds '{entries[0].name}'); remove it yourself or "
+                                "choose another --out")
+    for entry in entries:
+        if not _is_synth_entry(entry, version):
+            raise OutputExistsError(f"{out}: not replaced: '{entry.name}' is not something sianms synth writes; "
+                                    "remove it yourself or choose another --out")
+
+
+def _marked_version(marker_path: Path) -> str | None:
+    """The version folder an earlier run's marker names; None when there is no valid marker."""
+    if marker_path.is_symlink() or not marker_path.is_file():
+        return None
+    try:
+        marker = io.read_json(marker_path)
+    except DataFormatError:
+        return None
+    config = marker.get("config") if isinstance(marker, dict) and marker.get("kind") == MARKER_KIND else None
+    version = config.get("version") if isinstance(config, dict) else None
+    return version if isinstance(version, str) else None
+
+
+def _is_synth_entry(entry: Path, version: str) -> bool:
+    """Whether a top-level entry of a marked dataroot is one synth writes (links never are)."""
+    if entry.is_symlink():
+        return False
+    if entry.name == MARKER_NAME:
+        return entry.is_file()
+    return entry.name in (version, *DATAROOT_FOLDERS) and entry.is_dir()
+
+
+def _marker(config: SynthConfig, names: list[str]) -> dict:
+    """The provenance marker: what wrote this dataroot, with which resolved config."""
+    resolved = dataclasses.replace(config, scenes=len(names))
+    return {"kind": MARKER_KIND, "sianms_version": __version__, "config": dataclasses.asdict(resolved)}
+
+
+@contextmanager
+def _errors_name_files_under(out: Path, staging: Path) -> Iterator[None]:
+    """Write errors name the file under ``out``, not under the staging folder.
+
+    The staging folder is removed before the user reads the message, and ``out`` is the path
+    they gave. Any OSError the writers did not convert becomes an OutputError here too.
+    """
+    try:
+        yield
+    except io.OutputError as error:
+        raise io.OutputError(str(error).replace(str(staging), str(out))) from None
+    except OSError as error:
+        where = str(error.filename or staging).replace(str(staging), str(out))
+        raise io.OutputError(f"cannot write {io.describe_os_error(error, where)}") from None
+
+
+def _write_dataset(staging: Path, config: SynthConfig, names: list[str], progress: Progress, workers: int) -> None:
+    """Every table, map and sensor file of the dataset, then the marker, under ``staging``."""
+    with DatasetWriter(staging, config.version) as writer:
+        writer.add_static_tables()
+        if not splits_for_version(config.version):
+            writer.write_splits(custom_splits(names))
+        _write_maps(writer, config)
+        progress.start(len(names) * config.keyframes, "sample", "synth")
+        jobs = [(staging, config, index, name) for index, name in enumerate(names)]
+        with closing(_sensed_scenes(jobs, workers, progress)) as scenes:
+            for records in scenes:
+                for table, record in records:
+                    writer.add(table, record)
+    io.write_json(staging / MARKER_NAME, _marker(config, names))
+
+
+def _sensed_scenes(jobs: list[tuple], workers: int, progress: Progress) -> Iterator[list[tuple[str, dict]]]:
+    """Records of every scene, in scene order, sensed here or in ``workers`` processes.
+
+    Progress advances per keyframe here, per scene from workers. Closing the iterator early
+    (the caller failed or was interrupted) terminates the workers before the caller cleans up.
     """
     if workers == 1 or len(jobs) == 1:
         for job in jobs:
-            yield _scene_records(*job, on_keyframe=lambda: bar.update(1))
+            yield _scene_records(*job, on_keyframe=progress.advance)
         return
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        for job, records in zip(jobs, pool.map(_scene_records, *zip(*jobs))):
-            bar.update(job[1].keyframes)
+    with worker_pool(min(workers, len(jobs))) as pool:
+        for job, records in zip(jobs, pool.imap(_sense_scene, jobs)):
+            progress.advance(job[1].keyframes)
             yield records
 
 
-def _move_into_place(staging: Path, out: Path) -> None:
-    if out.exists():
-        trash = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
-        os.replace(out, trash / out.name)
-        os.replace(staging, out)
-        shutil.rmtree(trash, ignore_errors=True)
-    else:
-        os.replace(staging, out)
+def _sense_scene(job: tuple) -> list[tuple[str, dict]]:
+    """:func:`_scene_records` of one job, in a worker process."""
+    return _scene_records(*job)
 
 
 def _write_maps(writer: DatasetWriter, config: SynthConfig) -> None:
@@ -459,9 +574,7 @@ class _SceneSensing:
         extension = "pcd.bin" if lidar else "jpg"
         filename = f"samples/{channel}/{self.logfile}__{channel}__{timestamp}.{extension}"
         if data is not None and self.config.sensors == "all":
-            path = self.staging / filename
-            path.parent.mkdir(parents=True, exist_ok=True)
-            (write_pcd_bin if lidar else write_jpeg)(path, data)
+            (write_pcd_bin if lidar else write_jpeg)(self.staging / filename, data)
         ego_pose = {
             "token": token,
             "timestamp": timestamp,

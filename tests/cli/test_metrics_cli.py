@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
 
 from sianms_cli.cli import app
-from sianms_cli.synth.generate import SynthConfig, synthesize
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 runner = CliRunner()
@@ -25,12 +26,11 @@ def _reference_script():
 
 
 @pytest.fixture(scope="module")
-def data(tmp_path_factory) -> dict:
+def data(synthetic_dataroot, tmp_path_factory) -> dict:
     """A tiny synthetic mini dataroot (3 key frames per scene) and a perturbed results file."""
     reference = _reference_script()
     folder = tmp_path_factory.mktemp("metrics_cli")
-    dataroot = synthesize(folder / "dataroot", SynthConfig(scenes=2, image_scale=0.1, scene_seconds=1.5, seed=3,
-                                                            sensors="none"), progress=False)
+    dataroot = synthetic_dataroot(sensors="none")
     results = folder / "results.json"
     results.write_text(json.dumps(reference.make_results(dataroot, "perturbed_mini_val")))
     return {"dataroot": str(dataroot), "results": str(results), "folder": folder}
@@ -48,11 +48,43 @@ def test_prints_a_table_per_region(data):
     assert "AP@0.5" in result.output and "NDS" in result.output and "barrier" in result.output
 
 
+def test_the_table_marks_classes_without_ground_truth_as_the_devkit_scores_them(data):
+    pair = "overlap:CAM_FRONT|CAM_FRONT_RIGHT"
+    report = json.loads(invoke(data, "--region", pair, "--json").stdout)
+    assert [name for name, count in report["region_boxes"][pair]["gt"].items() if count > 0] == ["traffic_cone"]
+    assert report["regions"][pair]["mean_dist_aps"]["car"] == 0.0  # the devkit's rule: no GT, AP 0
+    lines = invoke(data, "--region", pair).stdout.splitlines()
+    assert [line.split()[0] for line in lines if line.split()[1:2] == ["*"]] == [
+        "car", "truck", "bus", "trailer", "construction_vehicle", "pedestrian", "motorcycle", "bicycle", "barrier"]
+    assert lines[-3:] == [
+        "mAP 0.0437   NDS 0.0360   over 10 classes",
+        "* 9 classes without ground truth here: AP 0 and TP errors 1 as in the devkit, counted in every mean and NDS",
+        "  mAP over the 1 class with ground truth: 0.4368",
+    ]
+
+
+def test_json_is_all_there_is_on_stdout(data, tmp_path):
+    out = tmp_path / "m.json"
+    result = invoke(data, "--json", "--out", str(out))
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout) == json.loads(out.read_text())
+    assert result.stderr == f"wrote {out}\n"
+
+
+def test_help_imports_no_evaluation_code():
+    timings = subprocess.run([sys.executable, "-X", "importtime", "-m", "sianms_cli", "metrics", "--help"],
+                             capture_output=True, text=True, check=True)
+    assert "--results" in timings.stdout and "--overwrite" in timings.stdout
+    imported = [line.rsplit("|", 1)[-1].strip() for line in timings.stderr.splitlines()]
+    assert "sianms_cli.cli.metrics" in imported
+    assert not [name for name in imported if name.startswith(("sianms_cli.evaluation", "sianms_cli.reporting"))]
+
+
 def test_json_output_and_paper_config(data):
     result = invoke(data, "--json", "--config", "paper", "--region", "overlap:*")
     assert result.exit_code == 0, result.output
     report = json.loads(result.output)
-    assert report["config"] == "paper"
+    assert report["schema"] == "sianms-metrics" and report["config"] == "paper"
     assert all(name.startswith("overlap:CAM_") for name in report["regions"])
     assert len(report["regions"]) == 6
     assert list(report["regions"]["overlap:CAM_FRONT|CAM_FRONT_RIGHT"]["label_aps"]) == ["car", "pedestrian", "bicycle"]
@@ -102,8 +134,9 @@ def test_bad_results_end_in_one_line_and_exit_2(data, tmp_path, change, expected
 
 @pytest.mark.parametrize(("options", "expected"), [
     (["--split", "val"], "needs a dataset version ending in 'trainval'"),
-    (["--split", "mini_val", "--region", "overlap:CAM_FRONT|CAM_BACK"], "unknown region"),
-    (["--split", "mini_val", "--config", "nope"], "neither a preset"),
+    (["--split", "mini_val", "--region", "overlap:CAM_FRONT|CAM_BACK"], "unknown region 'overlap:CAM_FRONT|CAM_BACK'"),
+    (["--split", "mini_val", "--region", "all,front"], "error: --region: unknown region 'front'; expected all,"),
+    (["--split", "mini_val", "--config", "nope"], "error: --config: 'nope' is neither a preset"),
 ])
 def test_bad_options_exit_2(data, options, expected):
     result = runner.invoke(app, ["metrics", "--dataroot", data["dataroot"], "--results", data["results"],

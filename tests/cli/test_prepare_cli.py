@@ -3,14 +3,12 @@ import json
 from typer.testing import CliRunner
 
 from sianms_cli.cli import app
-from sianms_cli.synth.generate import SynthConfig, synthesize
 
 runner = CliRunner()
 
 
-def test_prepare_cli_writes_a_cache_resumes_and_reports_errors(tmp_path):
-    data = tmp_path / "data"
-    synthesize(data, SynthConfig(scenes=1, image_scale=0.1, scene_seconds=1.0, seed=3), progress=False)
+def test_prepare_cli_writes_a_cache_resumes_and_reports_errors(synthetic_dataroot, tmp_path):
+    data = synthetic_dataroot()
     out = tmp_path / "cache"
     args = ["prepare", "--dataroot", str(data), "--version", "v1.0-mini", "--split", "mini_train", "--out", str(out),
             "--quiet"]
@@ -21,7 +19,7 @@ def test_prepare_cli_writes_a_cache_resumes_and_reports_errors(tmp_path):
     result = runner.invoke(app, args + ["--json"])
     assert result.exit_code == 0, result.output
     report = json.loads(result.output)
-    assert report["skipped"] == ["scene-0061"] and report["complete"]
+    assert report["already_finished"] == ["scene-0061"] and report["complete"]
 
     result = runner.invoke(app, args + ["--detector", "rcnn"])
     assert result.exit_code == 2 and "unknown detector 'rcnn'" in result.output

@@ -4,9 +4,11 @@ import pyarrow.parquet as pq
 import pytest
 
 from sianms_cli.data.cache import ShardWriter, clear_shard, decode_roi_features, shard_done, write_manifest
-from sianms_cli.data.frustums import extract_frustum, heading_in_camera
+from sianms_cli.data.frustums import extract_frustum, extract_frustums, heading_in_camera
 from sianms_cli.data.pairs import contiguous_pairs
-from sianms_cli.data.schemas import FRUSTUMS_SCHEMA, PAIRS_SCHEMA, detections_schema, with_metadata
+from sianms_cli.data.schemas import FRUSTUMS_SCHEMA, PAIRS_SCHEMA, cache_schemas, detections_schema, with_metadata
+from sianms_cli.geometry.boxes import box_corners
+from sianms_cli.geometry.quaternion import quat_multiply, yaw_to_quat
 
 K = np.array([[100.0, 0, 50], [0, 100, 50], [0, 0, 1]])
 
@@ -37,19 +39,88 @@ def test_heading_convention_of_frustum_pointnets():
     assert heading_in_camera(np.array([[1.0, 0, 0, 0], quarter])).tolist() == pytest.approx([0.0, np.pi / 2])
 
 
+def random_frustum_inputs(rng, boxes):
+    """Points, 2D boxes and associated 3D boxes of one camera, with points on the boxes' corners and faces."""
+    center = np.stack([rng.normal(0, 4, boxes), rng.normal(0, 1, boxes), rng.uniform(2, 45, boxes)], axis=1)
+    size = rng.uniform(0.5, 5, (boxes, 3))
+    tilt = np.concatenate([np.ones((boxes, 1)), rng.normal(0, 0.1, (boxes, 3))], axis=1)
+    rotation = quat_multiply(yaw_to_quat(rng.uniform(-np.pi, np.pi, boxes)), tilt)
+    corners = box_corners(center, size, rotation)
+    on_faces = np.concatenate([corners, 0.5 * (corners[:, [0, 1, 4, 2]] + corners[:, [2, 3, 6, 7]])], axis=1)
+    scattered = np.stack([rng.normal(0, 8, 3000), rng.normal(0, 2, 3000), rng.uniform(-5, 60, 3000)], axis=1)
+    points = np.concatenate([on_faces.reshape(-1, 3), scattered])
+    u = rng.uniform(-40, 240, boxes)
+    v = rng.uniform(-20, 120, boxes)
+    boxes2d = np.stack([u, v, u + rng.uniform(1, 90, boxes), v + rng.uniform(1, 60, boxes)], axis=1)
+    return points, rng.random((len(points), 2)), boxes2d, center, size, rotation, rng.random(boxes) < 0.7
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_frustums_of_all_boxes_equal_the_one_box_reference_exactly(seed):
+    rng = np.random.default_rng(seed)
+    points, extra, boxes2d, center, size, rotation, has_box = random_frustum_inputs(rng, int(rng.integers(0, 25)))
+    max_depth = (np.inf, 30.0)[seed % 2]
+    batch = extract_frustums(points, extra, boxes2d, K, center, size, rotation, has_box, 1.0, max_depth)
+    assert len(batch) == len(boxes2d) and batch.offsets[-1] == len(batch.points)
+    for n in range(len(boxes2d)):
+        box = (center[n], size[n], rotation[n]) if has_box[n] else (None, None, None)
+        one = extract_frustum(points, extra, boxes2d[n], K, *box, 1.0, max_depth)
+        rows = slice(batch.offsets[n], batch.offsets[n + 1])
+        assert batch.rot_angle[n] == one.rot_angle
+        assert np.array_equal(batch.points[rows], one.points) and np.array_equal(batch.extra[rows], one.extra)
+        assert np.array_equal(batch.labels[rows], one.labels) and batch.labels.dtype == np.int8
+        assert batch.has_box[n] == (one.box is not None)
+        if one.box is None:
+            assert np.isnan(batch.box_center_cam[n]).all() and np.isnan(batch.box_heading_frustum[n])
+            continue
+        for name in ("center_cam", "size", "rotation_cam", "center_frustum"):
+            assert np.array_equal(getattr(batch, f"box_{name}")[n], one.box[name]), name
+        assert batch.box_heading_cam[n] == one.box["heading_cam"]
+        assert batch.box_heading_frustum[n] == one.box["heading_frustum"]
+
+
+def reference_pairs(cameras, instances, rig_pairs):
+    """Brute force over every two detections."""
+    rows = []
+    for number, (a, b) in enumerate(rig_pairs):
+        for i in range(len(cameras)):
+            for j in range(len(cameras)):
+                if instances[i] and instances[i] == instances[j] and cameras[i] == a and cameras[j] == b:
+                    rows.append((number, i, j))
+    return sorted(rows)
+
+
 def test_pairs_only_between_contiguous_cameras_of_one_instance():
     rig_pairs = ((0, 1), (1, 2), (2, 3), (3, 0))
     cameras = np.array([0, 1, 2, 0, 2, 1])
     instances = np.array(["a", "a", "a", "b", "b", ""])
     rows = contiguous_pairs(cameras, instances, rig_pairs)
     # a: cameras 0-1 (pair 0), 1-2 (pair 1); 0-2 are not contiguous. b: cameras 0 and 2 -> none.
-    assert rows == [(0, 0, 1), (1, 1, 2)]
-    assert contiguous_pairs(np.array([0, 1]), np.array(["", ""]), rig_pairs) == []
+    assert rows.tolist() == [[0, 0, 1], [1, 1, 2]] and rows.dtype == np.int64
+    assert contiguous_pairs(np.array([0, 1]), np.array(["", ""]), rig_pairs).shape == (0, 3)
+    assert contiguous_pairs(np.array([0, 1]), np.array(["a", "a"]), ()).shape == (0, 3)
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_pairs_equal_a_brute_force_reference(seed):
+    rng = np.random.default_rng(seed)
+    cameras = int(rng.integers(2, 7))
+    count = int(rng.integers(0, 8 * cameras))
+    rig_pairs = ((0, 1),) if cameras == 2 else tuple((k, (k + 1) % cameras) for k in range(cameras))
+    # One detection per (instance, camera) at most, as association guarantees; some unassociated.
+    slots = rng.permutation(8 * cameras)[:count]
+    instances = np.where(rng.random(count) < 0.8, np.char.add("i", (slots // cameras).astype(str)), "")
+    camera = slots % cameras
+    rows = contiguous_pairs(camera, instances, rig_pairs)
+    assert [tuple(row) for row in rows.tolist()] == reference_pairs(camera.tolist(), instances.tolist(), rig_pairs)
 
 
 def test_schema_round_trip_and_atomic_shards(tmp_path):
-    schemas = {"detections": with_metadata(detections_schema(8), "detections", {"sianms.roi_feature_shape": "1,2,2"}),
-               "frustums": with_metadata(FRUSTUMS_SCHEMA, "frustums"), "pairs": with_metadata(PAIRS_SCHEMA, "pairs")}
+    schemas = cache_schemas((1, 2, 2), "tiny")
+    assert schemas["detections"] == with_metadata(detections_schema(8), "detections")  # names and types
+    assert schemas["detections"].metadata[b"sianms.roi_feature_shape"] == b"1,2,2"
+    assert schemas["frustums"].equals(with_metadata(FRUSTUMS_SCHEMA, "frustums"), check_metadata=True)
+    assert schemas["pairs"].equals(with_metadata(PAIRS_SCHEMA, "pairs"), check_metadata=True)
     feature = np.arange(4, dtype="<f2").reshape(1, 2, 2)
     row = {name: None for name in schemas["detections"].names}
     row.update(detection_id="d", x1=1.5, score=0.5, overlap_pairs=["A|B"], roi_feature=feature.tobytes(), detection_index=0)
@@ -69,6 +140,6 @@ def test_schema_round_trip_and_atomic_shards(tmp_path):
     assert back.schema.field("roi_feature").type == pa.binary(8)
     assert back.to_pylist() == table.to_pylist()
     assert np.array_equal(decode_roi_features(back.column("roi_feature"), (1, 2, 2))[0], feature)
-    manifest = write_manifest(tmp_path, {"seed": 0}, ["s", "t"])
+    manifest = write_manifest(tmp_path, {"seed": 0}, ["s", "t"], tmp_path)
     assert manifest["counts"] == {"samples": 1, "detections": 1, "frustums": 0, "pairs": 0}
     assert manifest["missing_shards"] == ["t"] and not manifest["complete"]

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from sianms_cli.detection2d.association import associate
-from sianms_cli.detection2d.ground_truth import CameraGroundTruth
+from sianms_cli.detection2d.detections import GroundTruth2D
 from sianms_cli.detection2d.simulated import (
     DEFAULT_CLASS_MODELS, SimulatedDetectorConfig, detection_probability, simulate_detections,
 )
@@ -18,8 +18,8 @@ def ground_truth(count, height=80.0, occlusion=0.0, truncation=0.0, distance=20.
     width = 1.6 * height
     boxes = np.stack([x, y, x + min(width, 140), y + height], axis=1)
     full = lambda v: np.full(count, v, dtype=float)  # noqa: E731
-    return CameraGroundTruth(np.arange(count), np.full(count, cls), boxes, full(truncation), full(occlusion),
-                             full(distance), np.zeros((count, 3)), np.ones((count, 3)), np.tile([1.0, 0, 0, 0], (count, 1)))
+    return GroundTruth2D(np.arange(count), boxes, np.full(count, cls), full(truncation), full(occlusion),
+                         full(distance))
 
 
 def recall(gt, images=40, seed=0, **kwargs):
@@ -27,7 +27,7 @@ def recall(gt, images=40, seed=0, **kwargs):
     ious = []
     for i in range(images):
         det = simulate_detections(gt, SIZE, np.random.default_rng([seed, i]), **kwargs)
-        match, iou = associate(det.boxes, gt.boxes2d, 0.3, det.classes, gt.classes)
+        match, iou = associate(det.boxes, gt.boxes, 0.3, det.classes, gt.classes)
         found += int((match >= 0).sum())
         total += len(gt)
         ious += iou[match >= 0].tolist()
@@ -65,7 +65,7 @@ def test_scores_follow_visibility():
     def tp_scores(runs, gt):
         out = []
         for det in runs:
-            match, _ = associate(det.boxes, gt.boxes2d, 0.3, det.classes, gt.classes)
+            match, _ = associate(det.boxes, gt.boxes, 0.3, det.classes, gt.classes)
             out += det.scores[match >= 0].tolist()
         return np.mean(out)
     assert tp_scores(visible, ground_truth(10)) > tp_scores(hidden, ground_truth(10)) + 0.1
@@ -76,12 +76,12 @@ def test_false_positives_lie_on_the_background():
     fps = 0
     for i in range(100):
         det = simulate_detections(gt, SIZE, np.random.default_rng(i))
-        match, _ = associate(det.boxes, gt.boxes2d, 1e-9)
+        match, _ = associate(det.boxes, gt.boxes, 1e-9)
         unmatched = det.boxes[match < 0]
         fps += len(unmatched)
         from sianms_cli.detection2d.association import box_iou
         if len(unmatched):
-            assert box_iou(unmatched, gt.boxes2d).max() <= 0.2 + 1e-9
+            assert box_iou(unmatched, gt.boxes).max() <= 0.2 + 1e-9
     assert fps > 20  # about fp_per_image * classes per image
 
 

@@ -42,7 +42,9 @@ def test_user_file_takes_missing_fields_from_the_devkit(tmp_path):
 
 
 @pytest.mark.parametrize(("content", "field", "message"), [
-    ([], None, "must be a JSON object"),
+    ([], None, "must be a JSON object, got a list"),
+    (3, None, "must be a JSON object, got a number"),
+    (None, None, "must be a JSON object, got null"),
     ({"class_ranges": {}}, "class_ranges", "unknown field"),
     ({"class_range": {}}, "class_range", "non-empty object"),
     ({"class_range": {"cyclist": 40}}, "class_range.cyclist", "unknown detection class"),

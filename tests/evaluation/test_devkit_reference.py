@@ -49,14 +49,13 @@ def _check_against(reference: dict, reports: dict) -> int:
     compared, problems = 0, []
     for case in reference_script.CASES:
         for region, theirs in reference["cases"][case["name"]]["regions"].items():
-            ours = reports[case["name"]]["regions"][region]
+            ours = reports[case["name"]].regions[region]
             out: list = []
             for key in SUMMARY_KEYS:
-                _compare(ours[key], theirs[key], f"{case['name']}/{region}/{key}", out)
+                _compare(getattr(ours, key), theirs[key], f"{case['name']}/{region}/{key}", out)
             compared += out.count(None)
             problems += [p for p in out if p is not None]
-            counts = reports[case["name"]]["region_boxes"][region]
-            assert (sum(counts["gt"].values()), sum(counts["pred"].values())) == \
+            assert (sum(ours.gt_counts.values()), sum(ours.pred_counts.values())) == \
                 (theirs["boxes"]["gt"], theirs["boxes"]["pred"]), (case["name"], region)
     assert problems == []
     return compared
@@ -77,27 +76,25 @@ def test_every_number_equals_the_devkits(devkit_fixture, our_reports):
 
 def test_cases_exercise_what_they_claim(our_reports):
     report = our_reports["perturbed_custom_all"]
-    boxes = report["boxes"]
-    assert boxes["gt"]["without_points"] > 0 and boxes["gt"]["in_bicycle_rack"] > 0
-    assert boxes["pred"]["in_bicycle_rack"] > 0 and boxes["pred"]["out_of_range"] > 0
-    assert boxes["pred"]["without_points"] == 0  # predictions are never dropped for points
-    counts = report["region_boxes"]["all"]
-    assert counts["gt"]["trailer"] == 0 and counts["pred"]["trailer"] > 0  # a class without GT
-    assert counts["gt"]["truck"] > 0 and counts["pred"]["truck"] == 0  # a class without predictions
-    summary = report["regions"]["all"]
-    assert summary["mean_dist_aps"]["trailer"] == 0.0 and summary["label_tp_errors"]["truck"]["trans_err"] == 1.0
-    assert 0 < summary["mean_dist_aps"]["car"] < 1
-    assert math.isnan(summary["label_tp_errors"]["traffic_cone"]["orient_err"])
-    assert 0 < sum(report["region_boxes"]["overlap"]["gt"].values()) < sum(counts["gt"].values())
+    assert report.gt_filter.without_points > 0 and report.gt_filter.in_bicycle_rack > 0
+    assert report.pred_filter.in_bicycle_rack > 0 and report.pred_filter.out_of_range > 0
+    assert report.pred_filter.without_points == 0  # predictions are never dropped for points
+    summary = report.regions["all"]
+    assert summary.gt_counts["trailer"] == 0 and summary.pred_counts["trailer"] > 0  # a class without GT
+    assert summary.gt_counts["truck"] > 0 and summary.pred_counts["truck"] == 0  # a class without predictions
+    assert summary.mean_dist_aps["trailer"] == 0.0 and summary.label_tp_errors["truck"]["trans_err"] == 1.0
+    assert 0 < summary.mean_dist_aps["car"] < 1
+    assert math.isnan(summary.label_tp_errors["traffic_cone"]["orient_err"])
+    assert 0 < sum(report.regions["overlap"].gt_counts.values()) < sum(summary.gt_counts.values())
 
 
 def test_flattened_order_decides_equal_scores(our_reports, devkit_fixture):
     # Same samples, same boxes, all scores 0.5: the predefined split flattens in results-file
     # order (scrambled), the custom split in sample order; the devkit's numbers differ, so do ours.
-    predefined = our_reports["ties_mini_val"]["regions"]["all"]["nd_score"]
-    custom = our_reports["ties_custom_val"]["regions"]["all"]["nd_score"]
+    predefined = our_reports["ties_mini_val"].regions["all"].nd_score
+    custom = our_reports["ties_custom_val"].regions["all"].nd_score
     assert predefined != pytest.approx(custom, abs=1e-6)
-    assert our_reports["ties_custom_val"]["boxes"]["pred"]["ignored_samples"] > 0
+    assert our_reports["ties_custom_val"].ignored_samples > 0
     reference = devkit_fixture["cases"]
     assert reference["ties_mini_val"]["regions"]["all"]["nd_score"] == pytest.approx(predefined, abs=TOLERANCE)
     assert reference["ties_custom_val"]["regions"]["all"]["nd_score"] == pytest.approx(custom, abs=TOLERANCE)
@@ -111,7 +108,7 @@ def test_paper_config_is_the_devkits_numbers_on_three_classes(devkit_fixture, re
     config = load_config("paper")
     for region in ("all", "overlap"):
         theirs = devkit_fixture["cases"][case["name"]]["regions"][region]
-        ours = report["regions"][region]
+        ours = report.regions[region].summary()
         assert list(ours["label_aps"]) == ["car", "pedestrian", "bicycle"]
         for name in config.class_names:
             for key in ("label_aps", "label_tp_errors"):

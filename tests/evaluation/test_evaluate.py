@@ -1,25 +1,27 @@
-"""The evaluation pipeline: results against a split, the report, the written output."""
+"""The evaluation pipeline: results against a split, the command's config, the report, the written output."""
 
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from metrics_reference import reference_script
-from sianms_cli.errors import OutputExistsError
+from sianms_cli.errors import OutputExistsError, SianmsError
 from sianms_cli.evaluation import (
     Results,
     ResultsFormatError,
     align_results,
     eval_split,
     evaluate,
-    format_report,
+    read_report,
     read_results,
-    run_metrics,
 )
 from sianms_cli.evaluation.boxes import empty_boxes, make_boxes
+from sianms_cli.evaluation.evaluate import MetricsConfig, run
+from sianms_cli.io import OutputError
 
 SUMMARY_KEYS = {"label_aps", "mean_dist_aps", "mean_ap", "label_tp_errors", "tp_errors", "tp_scores", "nd_score",
                 "eval_time", "cfg", "meta"}
@@ -63,55 +65,152 @@ def test_custom_split_flattens_in_split_order_predefined_in_file_order(reference
 def test_no_prediction_at_all_scores_zero_without_failing(reference_db):
     split = eval_split(reference_db, "mini_val")
     report = evaluate(reference_db, split, _results(split.sample_tokens), "paper", ["all", "overlap"])
-    for summary in report["regions"].values():
+    assert list(report.regions) == ["all", "overlap"]
+    for region in report.regions.values():
+        assert region.mean_ap == 0.0 and region.tp_errors["trans_err"] == 1.0 and region.nd_score == 0.0
+        assert sum(region.pred_counts.values()) == 0 and sum(region.gt_counts.values()) > 0
+    for summary in report.serialize()["regions"].values():
         assert set(summary) == SUMMARY_KEYS
-        assert summary["mean_ap"] == 0.0 and summary["tp_errors"]["trans_err"] == 1.0
-        assert summary["nd_score"] == 0.0
 
 
-def test_ground_truth_as_predictions_is_perfect(reference_db):
+def _ground_truth_as_predictions(db, split):
     from sianms_cli.evaluation.dataset import ground_truth
 
-    split = eval_split(reference_db, "custom_all")
-    gt, _ = ground_truth(reference_db, split)
+    gt, _ = ground_truth(db, split)
     gt = gt[gt["num_pts"] != 0]  # GT without points is dropped, a prediction never is
     gt["score"] = np.linspace(1.0, 0.01, len(gt))
     gt["velocity"] = np.nan_to_num(gt["velocity"])
-    report = evaluate(reference_db, split, _results(split.sample_tokens, gt), "paper", ["all", "overlap"])
-    for summary in report["regions"].values():
+    return _results(split.sample_tokens, gt)
+
+
+def test_ground_truth_as_predictions_is_perfect(reference_db):
+    split = eval_split(reference_db, "custom_all")
+    report = evaluate(reference_db, split, _ground_truth_as_predictions(reference_db, split), "paper",
+                      ["all", "overlap"])
+    for region in report.regions.values():
         for name in ("car", "pedestrian", "bicycle"):
-            assert summary["mean_dist_aps"][name] == pytest.approx(1.0, abs=1e-9)
-            assert summary["label_tp_errors"][name]["trans_err"] == pytest.approx(0.0, abs=1e-12)
+            assert region.mean_dist_aps[name] == pytest.approx(1.0, abs=1e-9)
+            assert region.label_tp_errors[name]["trans_err"] == pytest.approx(0.0, abs=1e-12)
 
 
-def test_run_metrics_writes_the_report_and_refuses_to_clobber(reference_folder, tmp_path):
-    case = reference_script.CASES[0]
+def test_a_class_without_gt_in_a_region_scores_as_the_devkit_scores_it(reference_db):
+    """The devkit's ``accumulate`` returns ``no_predictions()`` when ``npos == 0``: AP 0, TP errors 1,
+    and the class stays in mAP, the mean errors and NDS. Perfect predictions show it plainly."""
+    split = eval_split(reference_db, "custom_all")
+    report = evaluate(reference_db, split, _ground_truth_as_predictions(reference_db, split), "paper",
+                      ["all", "overlap:*"])
+    without_gt = {name: region.classes_without_gt for name, region in report.regions.items()}
+    assert without_gt == {
+        "all": (),
+        "overlap:CAM_FRONT|CAM_FRONT_RIGHT": ("pedestrian", "bicycle"),
+        "overlap:CAM_FRONT_RIGHT|CAM_BACK_RIGHT": ("pedestrian", "bicycle"),
+        "overlap:CAM_BACK_RIGHT|CAM_BACK": ("pedestrian", "bicycle"),
+        "overlap:CAM_BACK|CAM_BACK_LEFT": ("car", "pedestrian"),
+        "overlap:CAM_BACK_LEFT|CAM_FRONT_LEFT": ("pedestrian",),
+        "overlap:CAM_FRONT_LEFT|CAM_FRONT": ("car",),
+    }
+    for region in report.regions.values():
+        for name in region.classes_without_gt:
+            assert region.gt_counts[name] == 0
+            assert region.label_aps[name] == {"0.5": 0.0, "1.0": 0.0, "2.0": 0.0, "4.0": 0.0}
+            assert region.label_tp_errors[name] == dict.fromkeys(region.tp_errors, 1.0)
+        assert region.mean_ap == pytest.approx(1 - len(region.classes_without_gt) / 3, abs=1e-12)
+        assert region.mean_ap_of_classes_with_gt == pytest.approx(1.0, abs=1e-12)
+    # One class of three: mAP 1/3, each mean TP error (0 + 1 + 1) / 3, NDS (5/3 + 5 * 1/3) / 10.
+    pair = report.regions["overlap:CAM_FRONT|CAM_FRONT_RIGHT"]
+    assert pair.tp_errors == pytest.approx(dict.fromkeys(pair.tp_errors, 2 / 3), abs=1e-12)
+    assert pair.nd_score == pytest.approx(1 / 3, abs=1e-12)
+
+
+def test_run_writes_the_report_and_refuses_to_clobber(reference_folder, tmp_path):
     out = tmp_path / "metrics.json"
-    arguments = (reference_folder / "dataroot", reference_script.VERSION, case["split"],
-                 reference_folder / "results" / f"{case['results']}.json")
-    report = run_metrics(*arguments, regions=["all", "overlap"], out=out)
+    config = _config(reference_folder, regions=("all", "overlap"))
+    report = run(config, out)
     written = json.loads(out.read_text())
-    assert set(written["regions"]) == {"all", "overlap"}
+    assert written["schema"] == "sianms-metrics" and written["schema_version"] == 1
+    assert list(written["regions"]) == ["all", "overlap"]
     assert set(written["regions"]["all"]) == SUMMARY_KEYS
     assert written["regions"]["all"]["label_tp_errors"]["traffic_cone"]["orient_err"] is None  # NaN -> null
-    assert written["regions"]["all"]["nd_score"] == report["regions"]["all"]["nd_score"]
+    assert written["regions"]["all"]["nd_score"] == report.regions["all"].nd_score
     assert written["cfg"]["class_range"]["car"] == 50
+    assert read_report(out) == report
     before = out.read_bytes()
     with pytest.raises(OutputExistsError):
-        run_metrics(*arguments, out=out)
+        run(config, out)
     assert out.read_bytes() == before
-    run_metrics(*arguments, config="paper", out=out, overwrite=True)
+    run(_config(reference_folder, detection_config="paper"), out, overwrite=True)
     assert list(json.loads(out.read_text())["regions"]["all"]["label_aps"]) == ["car", "pedestrian", "bicycle"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["metrics.json"]
 
 
-def test_table_lists_every_class_threshold_and_error(reference_folder, reference_db):
+def test_run_refuses_the_output_before_any_work(reference_folder, tmp_path):
+    nowhere = _config(reference_folder, dataroot=str(tmp_path / "no-dataroot"))
+    (tmp_path / "taken.json").write_text("{}")
+    with pytest.raises(OutputExistsError):
+        run(nowhere, tmp_path / "taken.json")
+    with pytest.raises(OutputError, match="it is a folder"):
+        run(nowhere, tmp_path)
+    config = _config(reference_folder)
+    for overwrite in (False, True):
+        with pytest.raises(SianmsError, match="--out: .* is the results file"):
+            run(config, config.results, overwrite=overwrite)
+
+
+class _Recorder:
+    def __init__(self) -> None:
+        self.calls: list[tuple] = []
+
+    def start(self, total, unit, description) -> None:
+        self.calls.append(("start", total, unit, description))
+
+    def advance(self, amount=1) -> None:
+        self.calls.append(("advance", amount))
+
+
+def test_run_reports_bytes_read_then_regions_evaluated(reference_folder):
+    config = _config(reference_folder, regions=("all", "overlap"))
+    recorder = _Recorder()
+    run(config, progress=recorder)
+    size = Path(config.results).stat().st_size
+    starts = [call for call in recorder.calls if call[0] == "start"]
+    assert starts == [("start", size, "B", "reading results"), ("start", 2, "region", "evaluating")]
+    second = recorder.calls.index(starts[1])
+    assert sum(call[1] for call in recorder.calls[1:second]) == size
+    assert recorder.calls[second + 1:] == [("advance", 1), ("advance", 1)]
+
+
+def _config(reference_folder, **changes) -> MetricsConfig:
     case = reference_script.CASES[0]
-    results = read_results(reference_folder / "results" / f"{case['results']}.json")
-    text = format_report(evaluate(reference_db, case["split"], results, "detection_cvpr_2019", ["all", "overlap"]))
-    for word in ("region all", "region overlap", "AP@0.5", "AP@4.0", "ATE", "ASE", "AOE", "AVE", "AAE",
-                 "traffic_cone", "mAP", "NDS"):
-        assert word in text
+    fields = {"dataroot": str(reference_folder / "dataroot"), "version": reference_script.VERSION,
+              "split": case["split"], "results": str(reference_folder / "results" / f"{case['results']}.json")}
+    return MetricsConfig(**{**fields, **changes})
+
+
+def test_config_normalises_regions_and_paths(reference_folder):
+    config = _config(reference_folder, regions=" all, overlap:CAM_BACK|CAM_BACK_LEFT ,,", dataroot=Path("d"))
+    assert config.regions == ("all", "overlap:CAM_BACK|CAM_BACK_LEFT") and config.dataroot == "d"
+
+
+@pytest.mark.parametrize(("changes", "message"), [
+    ({"regions": ("all", "x")}, "--region: unknown region 'x'; expected all, overlap, non-overlap"),
+    ({"regions": ("overlap:CAM_FRONT|CAM_FRONT",)}, "--region: unknown region 'overlap:CAM_FRONT|CAM_FRONT'"),
+    ({"regions": ("overlap:CAM_FRONT",)}, "--region: unknown region"),
+    ({"regions": ""}, "--region: no region given"),
+    ({"detection_config": "nope"}, "--config: 'nope' is neither a preset (detection_cvpr_2019, paper)"),
+    ({"split": " "}, "--split: must not be empty"),
+    ({"results": ""}, "--results: must not be empty"),
+])
+def test_config_names_the_flag_of_a_bad_value(reference_folder, changes, message):
+    with pytest.raises(SianmsError) as caught:
+        _config(reference_folder, **changes)
+    assert str(caught.value).startswith(message)
+
+
+def test_a_pair_missing_from_the_rigs_is_refused_with_the_valid_pairs(reference_folder):
+    with pytest.raises(SianmsError) as caught:
+        run(_config(reference_folder, regions=("overlap:CAM_FRONT|CAM_BACK",)))
+    assert str(caught.value).startswith("unknown region 'overlap:CAM_FRONT|CAM_BACK'; regions: all, overlap")
+    assert "overlap:CAM_FRONT|CAM_FRONT_RIGHT" in str(caught.value)
 
 
 def test_the_configs_box_limit_applies_to_results_read_with_another(reference_folder, reference_db, tmp_path):

@@ -9,6 +9,7 @@ from sianms_cli.errors import SianmsError
 from sianms_cli.evaluation.dataset import ego_poses, eval_split, ground_truth
 from sianms_cli.evaluation.regions import centers_in_ego, overlap_bits, region_mask, resolve_regions
 from sianms_cli.geometry.transforms import apply_transform, invert_transform, make_transform
+from sianms_cli.nuscenes.overlap import box_overlap_pairs
 from sianms_cli.nuscenes.rigs import sample_rigs
 
 PAIRS = ("CAM_FRONT|CAM_FRONT_RIGHT", "CAM_FRONT_RIGHT|CAM_BACK_RIGHT", "CAM_BACK_RIGHT|CAM_BACK",
@@ -53,6 +54,19 @@ def test_overlap_bits_follow_each_samples_rig(reference_db):
         union |= region_mask(f"overlap:{pair}", overlap, len(boxes))
     assert np.array_equal(union, in_overlap)
     assert region_mask("all", None, len(boxes)).all()
+
+
+def test_the_evaluations_overlap_is_the_datasets_one_rule(reference_db):
+    # What `sianms metrics` computes from its box tables is what prepare and info get from
+    # nuscenes/overlap.py for the same annotations (two scenes, two rigs).
+    split = eval_split(reference_db, "custom_all")
+    boxes, _ = ground_truth(reference_db, split)
+    rotation, translation = ego_poses(reference_db, split)
+    rigs, rig_of_sample = sample_rigs(reference_db, split.sample_tokens)
+    metrics = overlap_bits(boxes, centers_in_ego(boxes, rotation, translation), rigs, rig_of_sample)
+    dataset = box_overlap_pairs(reference_db, split.sample_tokens, boxes["sample"], boxes["translation"])
+    assert metrics.pair_names == dataset.pair_names == PAIRS
+    assert np.array_equal(metrics.bits, dataset.bits) and np.count_nonzero(dataset.bits) > 0
 
 
 def test_a_sample_without_cameras_has_no_overlap():

@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from sianms_cli.geometry import boxes
-from sianms_cli.geometry.boxes import box_corners, count_points_in_boxes, points_in_boxes
-from sianms_cli.geometry.quaternion import quat_to_matrix, yaw_to_quat
+from sianms_cli.geometry.boxes import box_corners, count_points_in_boxes, points_in_boxes, points_in_own_boxes
+from sianms_cli.geometry.quaternion import quat_multiply, quat_to_matrix, yaw_to_quat
 
 IDENTITY = np.array([[1.0, 0.0, 0.0, 0.0]])
 YAW_180 = np.array([[0.0, 0.0, 0.0, 1.0]])  # exact matrix diag(-1, -1, 1)
@@ -127,3 +127,30 @@ def test_count_points_in_boxes_counts_shared_points_twice():
     counts = count_points_in_boxes(points, center, size, rotation)
     assert counts.dtype == np.int64
     np.testing.assert_array_equal(counts, [2, 2])
+
+
+@pytest.mark.parametrize("chunk_bytes", [72 * 5, 32 * 1024 * 1024])
+def test_points_in_own_boxes_equal_the_one_box_test_bit_for_bit(monkeypatch, chunk_bytes):
+    # Points on the corners, face centres and edges of tilted boxes, where only rounding
+    # decides: the answer must be the one-box call's, whatever the other boxes.
+    monkeypatch.setattr(boxes, "_CHUNK_BYTES", chunk_bytes)
+    rng = np.random.default_rng(11)
+    count = 40
+    center = rng.normal(0, 20, (count, 3))
+    size = rng.uniform(0.3, 6, (count, 3))
+    tilt = np.concatenate([np.ones((count, 1)), rng.normal(0, 0.2, (count, 3))], axis=1)
+    rotation = quat_multiply(yaw_to_quat(rng.uniform(-np.pi, np.pi, count)), tilt)
+    points, owner = [], []
+    for n in range(count):
+        corners = box_corners(center[n], size[n], rotation[n])[0]
+        on_box = np.concatenate([corners, 0.5 * (corners[[0, 1, 4, 2, 0, 3]] + corners[[2, 3, 6, 7, 5, 6]]),
+                                 0.5 * (corners[boxes.BOX_EDGES[:, 0]] + corners[boxes.BOX_EDGES[:, 1]]),
+                                 center[n] + rng.normal(0, 2, (20, 3))])
+        points.append(on_box)
+        owner.append(np.full(len(on_box), n))
+    points, owner = np.concatenate(points), np.concatenate(owner)
+    expected = np.concatenate([points_in_boxes(points[owner == n], center[n], size[n], rotation[n])[0]
+                               for n in range(count)])
+    assert np.array_equal(points_in_own_boxes(points, owner, center, size, rotation), expected)
+    assert 0 < expected.sum() < len(expected)
+    assert points_in_own_boxes(np.zeros((0, 3)), np.zeros(0, np.int64), center, size, rotation).shape == (0,)

@@ -5,6 +5,7 @@ from sianms_cli.errors import SianmsError
 from sianms_cli.geometry.frustum import (
     frustum_angle,
     frustum_corners,
+    frustum_members,
     points_in_frustum,
     rotate_from_frustum,
     rotate_to_frustum,
@@ -92,3 +93,19 @@ def test_frustum_corners_rejects_bad_depths():
         frustum_corners(BOX, K, near=5.0, far=5.0)
     with pytest.raises(SianmsError):
         frustum_corners(BOX, K, near=-1.0, far=5.0)
+
+
+@pytest.mark.parametrize("mask_bytes", [1, 64, 1 << 24])
+def test_frustum_members_of_all_boxes_equal_the_one_box_test(mask_bytes):
+    rng = np.random.default_rng(7)
+    points = np.stack([rng.uniform(-20, 20, 2000), rng.uniform(-5, 5, 2000), rng.uniform(-10, 60, 2000)], axis=1)
+    points[:10] = [[1.0, 1.0, 10.0]] * 10  # on a corner of BOX: bounds are inclusive
+    x1, y1 = rng.uniform(-50, 200, 40), rng.uniform(-20, 100, 40)
+    boxes = np.concatenate([[BOX], np.stack([x1, y1, x1 + rng.uniform(0, 80, 40), y1 + rng.uniform(0, 50, 40)], 1)])
+    box, point = frustum_members(points, boxes, K, 1.0, 50.0, max_mask_bytes=mask_bytes)
+    expected = [np.flatnonzero(points_in_frustum(points, b, K, 1.0, 50.0)) for b in boxes]
+    assert np.array_equal(box, np.repeat(np.arange(len(boxes)), [len(e) for e in expected]))
+    assert np.array_equal(point, np.concatenate(expected))
+    assert len(point) > 100 and set(range(10)) <= set(point[box == 0].tolist())
+    none = frustum_members(points, np.zeros((0, 4)), K)
+    assert none[0].shape == none[1].shape == (0,)

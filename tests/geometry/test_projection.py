@@ -5,6 +5,7 @@ from sianms_cli.errors import SianmsError
 from sianms_cli.geometry.projection import (
     BoxVisibility,
     box_in_image,
+    occlusion_fractions,
     project_boxes_to_image,
     view_points,
 )
@@ -153,3 +154,11 @@ def test_box_in_image_level_names():
         box_in_image(corners, K, IMAGE, "some")
     with pytest.raises(SianmsError):
         box_in_image(corners, K, IMAGE, 7)
+
+
+def test_occlusion_by_nearer_boxes_only():
+    boxes = np.array([[0, 0, 10, 10], [5, 0, 15, 10], [100, 100, 110, 110]], dtype=float)
+    occlusion = occlusion_fractions(boxes, np.array([10.0, 5.0, 1.0]))
+    assert occlusion[0] == pytest.approx(0.5)  # right half covered by the nearer box 1
+    assert occlusion[1] == 0.0 and occlusion[2] == 0.0
+    assert occlusion_fractions(boxes[:1], np.array([1.0])).tolist() == [0.0]

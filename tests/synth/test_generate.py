@@ -4,12 +4,13 @@ import json
 import numpy as np
 import pytest
 
+from sianms_cli import __version__
 from sianms_cli.errors import OutputExistsError, SianmsError
 from sianms_cli.geometry.boxes import count_points_in_boxes
 from sianms_cli.geometry.transforms import apply_transform, sensor_to_global
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.synth import generate
-from sianms_cli.synth.generate import SynthConfig, scene_names_for, synthesize
+from sianms_cli.synth.generate import MARKER_NAME, SynthConfig, run, scene_names_for
 
 
 def _digest(root):
@@ -65,8 +66,8 @@ def test_images_match_their_scaled_intrinsics(tiny_dataroot):
 
 def test_same_seed_same_bytes_and_workers_do_not_matter(tmp_path, tiny_dataroot, make_tiny):
     again = make_tiny(tmp_path / "again")
-    parallel = synthesize(tmp_path / "parallel", SynthConfig(scenes=2, image_scale=0.1, scene_seconds=1.5, seed=3),
-                          progress=False, workers=2)
+    parallel = run(SynthConfig(scenes=2, image_scale=0.1, scene_seconds=1.5, seed=3), tmp_path / "parallel",
+                   workers=2).out
     assert _digest(again) == _digest(tiny_dataroot)
     assert _digest(parallel) == _digest(tiny_dataroot)
 
@@ -86,15 +87,81 @@ def test_sensors_none_writes_tables_with_the_same_point_counts(tmp_path, make_ti
     assert full.column("num_lidar_pts").sum() > 0
 
 
-def test_refuses_a_non_empty_output_and_replaces_it_when_told(tmp_path, make_tiny):
-    out = tmp_path / "taken"
-    out.mkdir()
-    (out / "keep.txt").write_text("mine")
-    with pytest.raises(OutputExistsError, match="--overwrite"):
-        make_tiny(out, scenes=1)
-    assert (out / "keep.txt").read_text() == "mine"
-    synthesize(out, SynthConfig(scenes=1, image_scale=0.1, scene_seconds=0.5), overwrite=True, progress=False)
-    assert not (out / "keep.txt").exists() and (out / "v1.0-mini" / "scene.json").exists()
+def test_the_marker_records_what_wrote_the_dataroot(tiny_dataroot):
+    marker = json.loads((tiny_dataroot / MARKER_NAME).read_text())
+    assert marker["kind"] == "sianms synth dataroot" and marker["sianms_version"] == __version__
+    assert marker["config"] == {"version": "v1.0-mini", "scenes": 2, "image_scale": 0.1, "seed": 3,
+                                "sensors": "all", "scene_seconds": 1.5}
+    assert sorted(p.name for p in tiny_dataroot.iterdir()) == ["maps", "samples", MARKER_NAME, "v1.0-mini"]
+
+
+def test_an_empty_folder_is_filled_and_a_non_empty_one_refused(tmp_path, make_tiny):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert (make_tiny(empty, scenes=1, sensors="none") / MARKER_NAME).is_file()
+    with pytest.raises(OutputExistsError, match="exists and is not empty; pass --overwrite"):
+        make_tiny(empty, scenes=1, sensors="none")
+
+
+def test_overwrite_replaces_an_earlier_synth_output(tmp_path, make_tiny):
+    out = make_tiny(tmp_path / "out", version="synth-v1", scenes=1, sensors="none", scene_seconds=0.5)
+    run(SynthConfig(scenes=1, image_scale=0.1, scene_seconds=0.5, seed=9), out, overwrite=True)
+    assert sorted(p.name for p in out.iterdir()) == ["maps", "samples", MARKER_NAME, "v1.0-mini"]
+    assert json.loads((out / MARKER_NAME).read_text())["config"]["seed"] == 9
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # the old dataroot is gone, nothing beside
+
+
+def _earlier_output(out, *extra):
+    """A dataroot an earlier run wrote (marker, tables folder, samples), plus ``extra`` entries."""
+    (out / "v1.0-mini").mkdir(parents=True)
+    (out / "samples").mkdir()
+    (out / MARKER_NAME).write_text(json.dumps({"kind": "sianms synth dataroot", "config": {"version": "v1.0-mini"}}))
+    for name in extra:
+        (out / name).write_text("mine")
+    return out
+
+
+@pytest.mark.parametrize("make_out, first_foreign", [
+    (lambda out: _earlier_output(out, "keep.txt"), "'keep.txt' is not something sianms synth writes"),
+    (lambda out: _earlier_output(out, "v1.0-trainval"), "'v1.0-trainval' is not something sianms synth writes"),
+    (lambda out: (_earlier_output(out) / MARKER_NAME).write_text("{"), "no valid sianms-synth.json"),
+    (lambda out: (_earlier_output(out) / MARKER_NAME).unlink(), "no valid sianms-synth.json.*'samples'"),
+    (lambda out: (out.mkdir(), (out / "keep.txt").write_text("mine")), "no valid sianms-synth.json.*'keep.txt'"),
+], ids=["foreign-file", "foreign-version", "bad-marker", "no-marker", "user-folder"])
+def test_overwrite_never_replaces_a_folder_with_anything_else_in_it(tmp_path, make_out, first_foreign):
+    out = tmp_path / "out"
+    make_out(out)
+    before = sorted(p.name for p in out.iterdir())
+    with pytest.raises(OutputExistsError, match=f"{out}: not replaced: .*{first_foreign}"):
+        run(SynthConfig(scenes=1, sensors="none", scene_seconds=0.5), out, overwrite=True)
+    assert sorted(p.name for p in out.iterdir()) == before
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+def test_a_linked_entry_is_never_synth_output(tmp_path):
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    out = _earlier_output(tmp_path / "out")
+    (out / "maps").symlink_to(elsewhere)
+    with pytest.raises(OutputExistsError, match="'maps' is not something"):
+        run(SynthConfig(scenes=1, sensors="none", scene_seconds=0.5), out, overwrite=True)
+
+
+def test_refuses_an_output_that_is_a_file(tmp_path):
+    (tmp_path / "out").write_text("mine")
+    with pytest.raises(OutputExistsError, match="out: exists and is not a folder"):
+        run(SynthConfig(scenes=1, sensors="none", scene_seconds=0.5), tmp_path / "out", overwrite=True)
+    assert (tmp_path / "out").read_text() == "mine"
+
+
+@pytest.mark.parametrize("out", [".", "..", ""])
+def test_refuses_the_working_folder_and_its_parents(tmp_path, monkeypatch, out):
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    with pytest.raises(SianmsError, match="is the working folder or one of its parents"):
+        run(SynthConfig(scenes=1, sensors="none", scene_seconds=0.5), out, overwrite=True)
+    assert [p.name for p in tmp_path.iterdir()] == ["work"] and list(work.iterdir()) == []
 
 
 def test_an_interrupted_run_leaves_nothing(tmp_path, monkeypatch, make_tiny):
@@ -123,15 +190,25 @@ def test_trainval_names_come_from_the_devkit_train_and_val_lists():
     assert set(names) - set(val) <= set(official["train"])
 
 
-@pytest.mark.parametrize("config, message", [
-    (SynthConfig(scenes=0), "--scenes must be at least 1"),
-    (SynthConfig(scenes=11), "has 10 scenes"),
-    (SynthConfig(version="v1.0-trainval"), "--scenes is required"),
-    (SynthConfig(scenes=1, image_scale=0.0), "--image-scale"),
-    (SynthConfig(scenes=1, sensors="radar"), "--sensors must be one of"),
-    (SynthConfig(scenes=1, scene_seconds=25), "--scene-seconds"),
+@pytest.mark.parametrize("options, message", [
+    (dict(scenes=0), "--scenes must be at least 1"),
+    (dict(scenes=11), "has 10 scenes"),
+    (dict(version="v1.0-trainval"), "--scenes is required"),
+    (dict(scenes=1, image_scale=0.0), "--image-scale"),
+    (dict(scenes=1, image_scale=float("nan")), "--image-scale"),
+    (dict(scenes=1, sensors="radar"), "--sensors must be one of"),
+    (dict(scenes=1, scene_seconds=25), "--scene-seconds"),
+    (dict(scenes=1, scene_seconds=0.2), "--scene-seconds .* at least one keyframe"),
+    (dict(scenes=1, seed=-1), "--seed must be at least 0"),
+    (dict(scenes=1, version="../escape"), "--version must be one folder name"),
+    (dict(scenes=1, version="v1.0-mini/.."), "--version must be one folder name"),
 ])
-def test_bad_options_fail_clearly(tmp_path, config, message):
+def test_bad_options_fail_when_the_config_is_built(options, message):
     with pytest.raises(SianmsError, match=message):
-        synthesize(tmp_path / "out", config, progress=False)
-    assert not (tmp_path / "out").exists()
+        SynthConfig(**options)
+
+
+def test_bad_worker_count_fails_before_anything_is_written(tmp_path):
+    with pytest.raises(SianmsError, match="--workers must be at least 1"):
+        run(SynthConfig(scenes=1), tmp_path / "out", workers=0)
+    assert list(tmp_path.iterdir()) == []

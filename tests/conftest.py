@@ -1,0 +1,126 @@
+"""Fixtures shared across the suite: synthetic dataroots made once per session, real faults.
+
+A synthetic dataroot is generated once per distinct configuration and shared by every test
+file that asks for it, so it is READ-ONLY: a test that damages a dataset copies it first.
+"""
+
+import os
+import subprocess
+import uuid
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from sianms_cli.synth.generate import SynthConfig, run as run_synth
+
+SMALL_SYNTH = dict(scenes=2, image_scale=0.1, scene_seconds=1.5, seed=3)
+
+
+@pytest.fixture(scope="session")
+def synthetic_dataroot(tmp_path_factory):
+    """``make(**fields)``: the dataroot of ``SynthConfig(**SMALL_SYNTH | fields)``, made once.
+
+    The default is 2 mini scenes of 3 key frames with 160x90 images: every table and
+    sensor file in a few seconds.
+    """
+    made: dict[tuple, Path] = {}
+
+    def make(**fields) -> Path:
+        key = tuple(sorted({**SMALL_SYNTH, **fields}.items()))
+        if key not in made:
+            made[key] = run_synth(SynthConfig(**dict(key)), tmp_path_factory.mktemp("synth") / "data").out
+        return made[key]
+
+    return make
+
+
+@pytest.fixture
+def make_tiny():
+    """``make(path, **fields)``: a fresh dataroot of ``SMALL_SYNTH | fields`` of the test's own."""
+    return lambda path, **fields: run_synth(SynthConfig(**{**SMALL_SYNTH, **fields}), path).out
+
+
+@pytest.fixture(scope="session")
+def tiny_dataroot(synthetic_dataroot):
+    """The session's shared small dataroot (read-only)."""
+    return synthetic_dataroot()
+
+
+def _mount_tmpfs(options: str) -> Path:
+    """A fresh tmpfs mounted with ``options``; skips the test where mounting is not allowed."""
+    where = Path(f"/tmp/sianms-test-{uuid.uuid4().hex[:8]}")
+    where.mkdir()
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(where)], capture_output=True)
+    if done.returncode != 0:
+        where.rmdir()
+        pytest.skip(f"cannot mount a tmpfs here ({done.stderr.decode().strip() or 'not root'})")
+    return where
+
+
+def _unmount(where: Path) -> None:
+    subprocess.run(["umount", str(where)], check=True)
+    where.rmdir()
+
+
+@pytest.fixture
+def full_disk():
+    """A folder on a 256 KiB filesystem: writes past that fail with ENOSPC, as on a full disk."""
+    where = _mount_tmpfs("size=256k,mode=0777")
+    yield where
+    _unmount(where)
+
+
+@pytest.fixture
+def read_only_folder():
+    """A folder on a read-only filesystem (EROFS even for root, unlike chmod)."""
+    where = _mount_tmpfs("ro,size=64k,mode=0777")
+    yield where
+    _unmount(where)
+
+
+@pytest.fixture
+def umask():
+    """``set(mask)`` for the duration of one test."""
+    previous = os.umask(0o022)
+    yield os.umask
+    os.umask(previous)
+
+
+def _children(pid: int) -> list[int]:
+    """Pids of the live processes whose parent is ``pid``."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            found.append(int(stat.parent.name))
+    return found
+
+
+def _workers(pid: int) -> list[int]:
+    """Pids of the live worker processes ("spawn" children) of ``pid``; not its resource tracker."""
+    found = []
+    for child in _children(pid):
+        try:
+            if b"spawn_main" in Path(f"/proc/{child}/cmdline").read_bytes():
+                found.append(child)
+        except OSError:
+            continue
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.fixture
+def process_tree():
+    """``children(pid)``, ``workers(pid)`` and ``alive(pid)`` from /proc: no worker outlives a run."""
+    return SimpleNamespace(children=_children, workers=_workers, alive=_alive)

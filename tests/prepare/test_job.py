@@ -1,0 +1,238 @@
+"""`sianms prepare` as a job: the cache folder, its manifest, faults, interrupts, concurrent runs."""
+
+import json
+import os
+import shutil
+import signal
+import stat
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+from typer.testing import CliRunner
+
+from sianms_cli.cli import app
+from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
+from sianms_cli.io import OutputError
+from sianms_cli.prepare import job
+from sianms_cli.prepare.config import PrepareConfig
+from sianms_cli.prepare.sample import Preparer
+
+
+
+@pytest.fixture(scope="module")
+def dataroot(synthetic_dataroot):
+    """Three scenes: mini_train holds two of them (scene-0061, scene-0553), so two shards."""
+    return synthetic_dataroot(scenes=3)
+
+
+@pytest.fixture(scope="module")
+def config(dataroot):
+    return PrepareConfig(str(dataroot), "v1.0-mini", "mini_train", seed=5)
+
+
+@pytest.fixture(scope="module")
+def finished(config, tmp_path_factory):
+    """A complete cache of ``config``."""
+    out = tmp_path_factory.mktemp("cache") / "finished"
+    job.run(config, out)
+    return out
+
+
+def manifest_of(out):
+    return json.loads((out / "manifest.json").read_text())
+
+
+def parquet_bytes(root):
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*.parquet"))}
+
+
+def modes(root):
+    return {stat.S_IMODE(p.stat().st_mode) for p in [root, *root.rglob("*")] if not p.name.endswith(".lock")}
+
+
+def test_a_finished_cache_is_complete_and_checksummed(finished):
+    manifest = manifest_of(finished)
+    assert manifest["complete"] and manifest["shards_expected"] == manifest["shards_finished"] > 0
+    assert manifest["missing_shards"] == []
+    assert set(manifest["files"]) == {str(p.relative_to(finished)) for p in finished.rglob("*.parquet")}
+    assert "dataroot" not in manifest["config"] and len(manifest["config"]["dataset_sha256"]) == 64
+
+
+@pytest.mark.parametrize("mask, files, folders", [(0o022, 0o644, 0o755), (0o077, 0o600, 0o700)])
+def test_cache_permissions_follow_the_umask(config, tmp_path, umask, mask, files, folders):
+    umask(mask)
+    out = tmp_path / "cache"
+    job.run(config, out)
+    assert modes(out) == {files, folders}
+
+
+def test_an_interrupted_run_leaves_an_incomplete_manifest_and_a_rerun_finishes(config, finished, tmp_path,
+                                                                                monkeypatch):
+    out = tmp_path / "killed"
+    original = Preparer.sample
+    calls = []
+
+    def interrupted_on_the_second_sample(self, *args):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return original(self, *args)
+
+    monkeypatch.setattr(Preparer, "sample", interrupted_on_the_second_sample)
+    with pytest.raises(KeyboardInterrupt):
+        job.run(config, out)
+    manifest = manifest_of(out)
+    assert manifest["complete"] is False
+    assert manifest["shards_expected"] == manifest_of(finished)["shards_expected"]
+    assert manifest["shards_finished"] == 0 and not list(out.rglob("*.parquet")) and not list(out.rglob("*.tmp"))
+    monkeypatch.setattr(Preparer, "sample", original)
+    job.run(config, out)
+    assert manifest_of(out)["complete"] and parquet_bytes(out) == parquet_bytes(finished)
+
+
+def test_sigint_stops_the_workers_and_leaves_an_incomplete_cache(dataroot, tmp_path, process_tree):
+    out = tmp_path / "cache"
+    command = [sys.executable, "-m", "sianms_cli", "prepare", "--dataroot", str(dataroot), "--split", "mini_train",
+               "--out", str(out), "--workers", "2", "--quiet"]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 60
+    workers = []
+    while len(workers) < 2 and time.monotonic() < deadline and process.poll() is None:
+        time.sleep(0.05)
+        workers = process_tree.workers(process.pid)
+    assert len(workers) == 2, process.communicate()
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130, stderr
+    assert stderr.decode().startswith("interrupted (SIGINT)")
+    time.sleep(0.5)
+    assert not [pid for pid in workers if process_tree.alive(pid)]
+    assert manifest_of(out)["complete"] is False
+    assert not list(out.rglob("*.tmp"))
+
+
+def test_disk_full_is_one_error_and_leaves_no_partial_file(config, full_disk):
+    out = full_disk / "cache"
+    with pytest.raises(OutputError, match=f"cannot write {out}/.*: No space left on device"):
+        job.run(config, out)
+    assert not list(out.rglob("*.tmp")) and not list(out.rglob("*.parquet"))
+    assert manifest_of(out)["complete"] is False
+
+
+def test_read_only_output_is_one_error_line(config, read_only_folder):
+    result = CliRunner().invoke(app, ["prepare", "--dataroot", config.dataroot, "--split", "mini_train",
+                                      "--out", str(read_only_folder / "cache"), "--quiet"])
+    assert result.exit_code == 2
+    assert result.output == f"error: cannot write {read_only_folder / 'cache'}: Read-only file system\n"
+
+
+def test_out_naming_a_file_is_refused(config, tmp_path):
+    (tmp_path / "file").write_text("mine")
+    with pytest.raises(OutputExistsError, match="exists and is not a folder"):
+        job.run(config, tmp_path / "file")
+
+
+def test_a_folder_that_is_not_a_cache_is_never_deleted(config, tmp_path):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "keep.txt").write_text("precious")
+    for overwrite in (False, True):
+        with pytest.raises(OutputExistsError, match="is not a sianms cache"):
+            job.run(config, out, overwrite=overwrite)
+    assert [p.name for p in out.iterdir()] == ["keep.txt"]
+
+
+def test_overwrite_interrupted_after_deleting_still_leaves_a_cache(config, finished, tmp_path, monkeypatch):
+    out = tmp_path / "cache"
+    shutil.copytree(finished, out)
+    other = PrepareConfig(config.dataroot, config.version, config.split, seed=6)
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(job, "write_scene_shard", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        job.run(other, out, overwrite=True)
+    monkeypatch.undo()
+    assert manifest_of(out)["config"]["seed"] == 6 and not list(out.rglob("*.parquet"))
+    job.run(config, out, overwrite=True)
+    assert parquet_bytes(out) == parquet_bytes(finished)
+
+
+def test_a_moved_dataset_keeps_its_cache_and_a_changed_one_does_not(config, finished, dataroot, tmp_path):
+    copied_dataroot = shutil.copytree(dataroot, tmp_path / "moved")
+    out = tmp_path / "cache"
+    shutil.copytree(finished, out)
+    moved = PrepareConfig(str(copied_dataroot), config.version, config.split, seed=5)
+    result = job.run(moved, out)
+    assert result.shards_run == [] and manifest_of(out)["complete"]
+    scene_table = copied_dataroot / "v1.0-mini" / "scene.json"
+    scene_table.write_text(scene_table.read_text().replace("Two lanes", "2 lanes").replace("One lane", "1 lane"))
+    with pytest.raises(OutputExistsError, match=r"differs in: dataset_sha256"):
+        job.run(moved, out)
+
+
+def test_a_tables_only_dataset_is_refused_before_anything_is_written(synthetic_dataroot, tmp_path):
+    tables_only = synthetic_dataroot(sensors="none")
+    with pytest.raises(DataFormatError, match=r"sensor file not found \(a dataset written with `sianms synth "
+                                              r"--sensors none` has tables only"):
+        job.run(PrepareConfig(str(tables_only), "v1.0-mini", "mini_train"), tmp_path / "cache")
+    assert not (tmp_path / "cache").exists()
+
+
+def test_sweeps_need_lidar_sweeps_between_key_frames(config, tmp_path):
+    with_sweeps = PrepareConfig(config.dataroot, config.version, config.split, sweeps=5)
+    with pytest.raises(SianmsError, match="--sweeps 5: .* has no LiDAR sweeps between key frames"):
+        job.run(with_sweeps, tmp_path / "cache")
+    assert not (tmp_path / "cache").exists()
+
+
+@pytest.mark.parametrize("fields, message", [
+    (dict(min_depth=10.0, max_depth=5.0), r"--max-depth must be greater than --min-depth \(10.0\)"),
+    (dict(min_depth=-1.0), "--min-depth must be a finite number >= 0"),
+    (dict(version="../escape"), "--version"),
+])
+def test_config_validation(config, fields, message):
+    with pytest.raises(SianmsError, match=message):
+        PrepareConfig(**{"dataroot": config.dataroot, "version": config.version, "split": config.split, **fields})
+
+
+def test_concurrent_runs_share_the_work_shard_by_shard(config, finished, tmp_path, monkeypatch):
+    """Two runs into one folder: each shard is written once, by whichever run locks it first."""
+    out = tmp_path / "cache"
+    started = threading.Barrier(2)
+    original = job._write_shard
+
+    def both_runs_in_flight(*args, **kwargs):
+        started.wait(timeout=30)  # the first shard of each run starts only once both runs hold one
+        monkeypatch.setattr(job, "_write_shard", original)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(job, "_write_shard", both_runs_in_flight)
+    results = [None, None]
+
+    def prepare_into_out(i):
+        results[i] = job.run(config, out)
+
+    second = threading.Thread(target=prepare_into_out, args=(1,))
+    second.start()
+    prepare_into_out(0)
+    second.join()
+    assert results[0].shards_run and results[1].shards_run  # both runs did work
+    assert sorted(results[0].shards_run + results[1].shards_run) == ["scene-0061", "scene-0553"]
+    assert manifest_of(out)["complete"] and parquet_bytes(out) == parquet_bytes(finished)
+
+
+def test_cli_prints_what_it_did_as_json(config, finished, tmp_path):
+    out = tmp_path / "cache"
+    shutil.copytree(finished, out)
+    result = CliRunner().invoke(app, ["prepare", "--dataroot", config.dataroot, "--split", "mini_train",
+                                      "--seed", "5", "--out", str(out), "--json"])
+    assert result.exit_code == 0, result.output
+    printed = json.loads(result.stdout)  # the progress bar goes to stderr
+    assert printed["written"] == [] and printed["complete"] and printed["busy"] == []
+    assert sorted(printed["already_finished"]) == sorted(p.stem for p in (finished / "_shards").glob("*.json"))
+    assert os.path.samefile(printed["out"], out)

@@ -1,0 +1,32 @@
+"""Worker processes end with the run: on success, on an interrupt, and when one of them dies."""
+
+import os
+import time
+
+import pytest
+
+from sianms_cli.processes import WorkerDied, worker_pool
+
+
+def test_results_in_order_and_as_they_finish():
+    with worker_pool(2) as pool:
+        assert list(pool.imap(abs, [-3, 1, -2])) == [3, 1, 2]
+        assert sorted(pool.imap_unordered(abs, [-3, 1, -2])) == [1, 2, 3]
+
+
+def test_a_worker_killed_mid_task_is_an_error_not_a_hang():
+    with pytest.raises(WorkerDied, match="a worker process died before finishing its task"):
+        with worker_pool(2) as pool:
+            list(pool.imap(os._exit, [9]))
+
+
+def test_an_interrupt_terminates_running_workers(process_tree):
+    with pytest.raises(KeyboardInterrupt):
+        with worker_pool(2) as pool:
+            pool.imap_unordered(time.sleep, [60, 60])
+            deadline = time.monotonic() + 30
+            while len(process_tree.workers(os.getpid())) < 2 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            workers = process_tree.workers(os.getpid())
+            raise KeyboardInterrupt
+    assert workers and not [pid for pid in workers if process_tree.alive(pid)]
