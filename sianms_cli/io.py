@@ -65,6 +65,45 @@ def make_folder(path: str | Path) -> Path:
     return path
 
 
+class AtomicFile:
+    """A file written under a hidden temporary name beside ``path``, for streaming writers.
+
+    :attr:`stream` is the open file; :meth:`commit` closes it and renames it to ``path``;
+    :meth:`discard` closes it and deletes it. Writers that keep several files open at once
+    (the dataset tables, the Parquet files of a cache shard) hold one each.
+    """
+
+    def __init__(self, path: str | Path, *, text: bool = False) -> None:
+        self.path = Path(path)
+        make_folder(self.path.parent)
+        if self.path.is_dir():
+            raise OutputError(f"cannot write {self.path}: it is a folder")
+        self.temporary = partial_name(self.path)
+        with os_errors_as_output_errors(self.path):
+            descriptor = os.open(self.temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        self.stream: IO = (open(descriptor, "w", encoding="utf-8", newline="\n") if text
+                           else open(descriptor, "wb"))
+
+    def commit(self) -> Path:
+        """Close and rename into place; on failure (a full disk) the temporary file is deleted."""
+        try:
+            with os_errors_as_output_errors(self.path):
+                self.stream.close()
+                os.replace(self.temporary, self.path)
+        except BaseException:
+            self.discard()
+            raise
+        return self.path
+
+    def discard(self) -> None:
+        """Close (ignoring a failing flush: the content is dropped) and delete the file."""
+        try:
+            self.stream.close()
+        except OSError:
+            pass
+        self.temporary.unlink(missing_ok=True)
+
+
 @contextmanager
 def atomic_file(path: str | Path, *, text: bool = False) -> Iterator[IO]:
     """A stream whose content appears at ``path`` only when the block completes.
@@ -72,21 +111,14 @@ def atomic_file(path: str | Path, *, text: bool = False) -> Iterator[IO]:
     The parent folder is created if needed. On any error (or interrupt) the temporary file
     is removed and ``path`` is left as it was.
     """
-    path = Path(path)
-    make_folder(path.parent)
-    if path.is_dir():
-        raise OutputError(f"cannot write {path}: it is a folder")
-    temporary = partial_name(path)
+    file = AtomicFile(path, text=text)
     try:
         with os_errors_as_output_errors(path):
-            descriptor = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-            with (open(descriptor, "w", encoding="utf-8", newline="\n") if text
-                  else open(descriptor, "wb")) as stream:
-                yield stream
-            os.replace(temporary, path)
+            yield file.stream
     except BaseException:
-        temporary.unlink(missing_ok=True)
+        file.discard()
         raise
+    file.commit()
 
 
 def write_bytes(path: str | Path, data: bytes) -> Path:

@@ -52,26 +52,10 @@ def test_an_error_inside_the_block_leaves_the_destination_untouched(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["x.txt"]
 
 
-def test_disk_full_is_one_output_error_naming_the_path(tmp_path, monkeypatch):
-    real_open = open
-
-    class FullDisk:
-        def __init__(self, handle):
-            self.handle = handle
-
-        def write(self, data):
-            raise OSError(errno.ENOSPC, "No space left on device")
-
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *exc):
-            self.handle.close()
-
-    monkeypatch.setattr("builtins.open", lambda *a, **k: FullDisk(real_open(*a, **k)))
-    with pytest.raises(io.OutputError, match=r"cannot write .*x\.bin: No space left on device"):
-        io.write_bytes(tmp_path / "x.bin", b"data")
-    assert list(tmp_path.iterdir()) == []
+def test_disk_full_is_one_output_error_naming_the_path(full_disk):
+    with pytest.raises(io.OutputError, match=rf"cannot write {full_disk}/x\.bin: No space left on device"):
+        io.write_bytes(full_disk / "x.bin", bytes(1 << 20))
+    assert list(full_disk.iterdir()) == []
 
 
 def test_read_only_folder_is_one_output_error_naming_the_path(tmp_path, monkeypatch):

@@ -207,13 +207,13 @@ def test_a_run_killed_half_way_then_rerun_gives_the_same_output(config, dataroot
     with pytest.raises(KeyboardInterrupt):
         prepare(config, out)
     assert not list((out / "detections").glob("*.parquet"))
-    assert not list(out.rglob("*.tmp"))  # the interrupted shard's temporary files are removed
+    assert not list(out.rglob("*.partial"))  # the interrupted shard's temporary files are removed
     manifest = json.loads((out / "manifest.json").read_text())
     assert (manifest["complete"], manifest["shards_expected"], manifest["missing_shards"]) == (False, 1, ["scene-0061"])
     monkeypatch.setattr(prepare_module.Preparer, "sample", original)
     result = prepare(config, out)
     assert result.shards_run == ["scene-0061"]
-    assert not list(out.rglob("*.tmp"))
+    assert not list(out.rglob("*.partial"))
     assert file_bytes(out) == file_bytes(cache)
     # A finished shard is skipped on the next run.
     assert prepare(config, out).shards_skipped == ["scene-0061"]

@@ -10,8 +10,8 @@ Layout of a cache folder::
     _shards/<shard>.lock               held (flock) by the run writing the shard
     .sianms.lock                       held while a run claims the folder or rewrites the manifest
 
-A shard's files are written under hidden temporary names (``.<shard>.parquet.tmp``) one row
-group per sample, renamed when complete, and the shard counts as finished only once its
+A shard's files are written under hidden temporary names (``.<shard>.parquet.<pid>.<random>.partial``),
+one row group per sample, renamed when complete, and the shard counts as finished only once its
 completion record (with the files' row counts and SHA-256) exists. A rerun skips finished
 shards and rewrites the others; readers (which skip hidden files and match ``*.parquet``)
 never see a half-written file. The manifest says ``complete`` only when every shard of the
@@ -21,7 +21,6 @@ split is finished.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +30,7 @@ import pyarrow.parquet as pq
 
 from sianms_cli.data.schemas import DATASETS, SCHEMA_VERSION
 from sianms_cli.errors import DataFormatError
-from sianms_cli.io import make_folder, os_errors_as_output_errors, read_json, sha256_of, write_json
+from sianms_cli.io import PARTIAL_SUFFIX, AtomicFile, os_errors_as_output_errors, read_json, sha256_of, write_json
 
 MANIFEST = "manifest.json"
 SHARDS = "_shards"
@@ -53,17 +52,16 @@ class ShardWriter:
     def __init__(self, root: Path, shard: str, schemas: dict[str, pa.Schema]) -> None:
         self.root, self.shard, self.schemas = Path(root), shard, schemas
         self.rows = {name: 0 for name in DATASETS}
-        # The files are opened here, not by pyarrow, so that they are closed even when
-        # writing the Parquet footer fails.
-        self._files: dict[str, pa.NativeFile] = {}
+        # The files are io.py's, not pyarrow's, so that they are closed and deleted even
+        # when writing the Parquet footer fails.
+        self._files: dict[str, AtomicFile] = {}
         self._writers: dict[str, pq.ParquetWriter] = {}
         try:
             for name in DATASETS:
-                make_folder(self.root / name)
+                self._files[name] = AtomicFile(self._final(name))
                 with os_errors_as_output_errors(self._final(name)):
-                    self._files[name] = pa.OSFile(str(self._tmp(name)), "wb")
                     self._writers[name] = pq.ParquetWriter(
-                        self._files[name], schemas[name], compression="zstd", write_statistics=True)
+                        self._files[name].stream, schemas[name], compression="zstd", write_statistics=True)
         except BaseException:
             self._abandon()
             raise
@@ -71,21 +69,12 @@ class ShardWriter:
     def _final(self, name: str) -> Path:
         return self.root / name / f"{self.shard}.parquet"
 
-    def _tmp(self, name: str) -> Path:
-        return self.root / name / f".{self.shard}.parquet.tmp"
-
     def write(self, name: str, table: pa.Table) -> None:
         """Append ``table`` (one sample's rows) as a row group of dataset ``name``."""
         if table.num_rows:
             with os_errors_as_output_errors(self._final(name)):
                 self._writers[name].write_table(table.cast(self.schemas[name]))
             self.rows[name] += table.num_rows
-
-    def _close(self) -> None:
-        for name in DATASETS:
-            with os_errors_as_output_errors(self._final(name)):
-                self._writers.pop(name).close()
-                self._files.pop(name).close()
 
     def _abandon(self) -> None:
         """Close what is open, ignoring errors (the files are deleted), and delete the files."""
@@ -95,21 +84,17 @@ class ShardWriter:
             except OSError:
                 writer.is_open = False  # else pyarrow retries the close, and fails again, when collected
         for file in self._files.values():
-            try:
-                file.close()
-            except OSError:
-                pass
+            file.discard()
         self._writers, self._files = {}, {}
-        for name in DATASETS:
-            self._tmp(name).unlink(missing_ok=True)
 
     def commit(self, extra: dict[str, Any]) -> dict[str, Any]:
-        """Close, rename the files into place, then write the shard's completion record."""
-        self._close()
+        """Finish the files, rename them into place, then write the shard's completion record."""
         files = {}
         for name in DATASETS:
             with os_errors_as_output_errors(self._final(name)):
-                os.replace(self._tmp(name), self._final(name))
+                self._writers[name].close()
+            del self._writers[name]
+            self._files.pop(name).commit()
             files[f"{name}/{self.shard}.parquet"] = {
                 "rows": self.rows[name], "sha256": sha256_of(self._final(name))}
         record = {"shard": self.shard, "files": files, **extra}
@@ -132,11 +117,12 @@ def shard_done(root: Path, shard: str) -> bool:
 
 
 def clear_shard(root: Path, shard: str) -> None:
-    """Remove every file of an unfinished shard (temporary or not)."""
+    """Remove every file of an unfinished shard, temporary files of a killed run included."""
     root = Path(root)
     for name in DATASETS:
-        for path in ((root / name / f"{shard}.parquet"), (root / name / f".{shard}.parquet.tmp")):
-            path.unlink(missing_ok=True)
+        (root / name / f"{shard}.parquet").unlink(missing_ok=True)
+        for leftover in (root / name).glob(f".{shard}.parquet.*{PARTIAL_SUFFIX}"):
+            leftover.unlink(missing_ok=True)
     (root / SHARDS / f"{shard}.json").unlink(missing_ok=True)
 
 

@@ -8,11 +8,9 @@ deterministic: the same records added in the same order give byte-identical file
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import io
 import json
-import os
 from pathlib import Path
 from types import TracebackType
 from typing import IO, Any, Mapping, Sequence
@@ -21,7 +19,7 @@ import numpy as np
 from PIL import Image
 
 from sianms_cli.errors import OutputExistsError
-from sianms_cli.io import write_bytes
+from sianms_cli.io import AtomicFile, make_folder, os_errors_as_output_errors, write_bytes
 from sianms_cli.nuscenes.tables import (
     ATTRIBUTES,
     CATEGORIES,
@@ -136,23 +134,18 @@ class DatasetWriter:
                 f"{self.table_root}: already holds finished tables ({', '.join(finished)}); "
                 "pass overwrite to replace them"
             )
-        self.table_root.mkdir(parents=True, exist_ok=True)
-        self._files: dict[str, IO[str]] = {}
+        make_folder(self.table_root)
+        self._files: dict[str, AtomicFile] = {}
         self._counts = dict.fromkeys(TABLE_NAMES, 0)
         self._closed = False
 
     def _final_path(self, table: str) -> Path:
         return self.table_root / f"{table}.json"
 
-    def _partial_path(self, table: str) -> Path:
-        return self.table_root / f"{table}.json.partial"
-
     def _file(self, table: str) -> IO[str]:
-        handle = self._files.get(table)
-        if handle is None:
-            handle = open(self._partial_path(table), "w", encoding="utf-8", newline="\n")
-            self._files[table] = handle
-        return handle
+        if table not in self._files:
+            self._files[table] = AtomicFile(self._final_path(table), text=True)
+        return self._files[table].stream
 
     def add(self, table: str, record: Mapping[str, Any]) -> None:
         """Check ``record`` against the ``table`` schema and append it to the table's file.
@@ -164,7 +157,8 @@ class DatasetWriter:
             raise ValueError(f"{self.table_root}: writer is closed")
         line = json.dumps(checked_record(table, record), allow_nan=False)
         separator = "[\n" if self._counts[table] == 0 else ",\n"
-        self._file(table).write(separator + line)
+        with os_errors_as_output_errors(self._final_path(table)):
+            self._file(table).write(separator + line)
         self._counts[table] += 1
 
     def count(self, table: str) -> int:
@@ -234,26 +228,19 @@ class DatasetWriter:
             return
         try:
             for table in TABLE_NAMES:
-                handle = self._file(table)
-                handle.write("[]\n" if self._counts[table] == 0 else "\n]\n")
-                handle.close()
+                with os_errors_as_output_errors(self._final_path(table)):
+                    self._file(table).write("[]\n" if self._counts[table] == 0 else "\n]\n")
             for table in TABLE_NAMES:
-                os.replace(self._partial_path(table), self._final_path(table))
+                self._files.pop(table).commit()
         except BaseException:
             self.abort()
             raise
         self._closed = True
 
     def abort(self) -> None:
-        """Stop writing and delete the partial table files; finished files are left alone.
-
-        Closing a handle can fail again (its buffer cannot be flushed to a full disk); the
-        file is deleted all the same.
-        """
-        for table, handle in self._files.items():
-            with contextlib.suppress(OSError):
-                handle.close()
-            self._partial_path(table).unlink(missing_ok=True)
+        """Stop writing and delete the partial table files; finished files are left alone."""
+        for file in self._files.values():
+            file.discard()
         self._files.clear()
         self._closed = True
 

@@ -129,7 +129,7 @@ def test_schema_round_trip_and_atomic_shards(tmp_path):
         writer.write("detections", table)
     assert not shard_done(tmp_path, "s") and not (tmp_path / "detections" / "s.parquet").exists()
     clear_shard(tmp_path, "s")
-    assert not list(tmp_path.rglob("*.tmp"))
+    assert not list(tmp_path.rglob("*.partial"))
     with ShardWriter(tmp_path, "s", schemas) as writer:
         writer.write("detections", table)
         record = writer.commit({"samples": 1})

@@ -87,7 +87,7 @@ def test_an_interrupted_run_leaves_an_incomplete_manifest_and_a_rerun_finishes(c
     manifest = manifest_of(out)
     assert manifest["complete"] is False
     assert manifest["shards_expected"] == manifest_of(finished)["shards_expected"]
-    assert manifest["shards_finished"] == 0 and not list(out.rglob("*.parquet")) and not list(out.rglob("*.tmp"))
+    assert manifest["shards_finished"] == 0 and not list(out.rglob("*.parquet")) and not list(out.rglob("*.partial"))
     monkeypatch.setattr(Preparer, "sample", original)
     job.run(config, out)
     assert manifest_of(out)["complete"] and parquet_bytes(out) == parquet_bytes(finished)
@@ -111,14 +111,14 @@ def test_sigint_stops_the_workers_and_leaves_an_incomplete_cache(dataroot, tmp_p
     time.sleep(0.5)
     assert not [pid for pid in workers if process_tree.alive(pid)]
     assert manifest_of(out)["complete"] is False
-    assert not list(out.rglob("*.tmp"))
+    assert not list(out.rglob("*.partial"))
 
 
 def test_disk_full_is_one_error_and_leaves_no_partial_file(config, full_disk):
     out = full_disk / "cache"
     with pytest.raises(OutputError, match=f"cannot write {out}/.*: No space left on device"):
         job.run(config, out)
-    assert not list(out.rglob("*.tmp")) and not list(out.rglob("*.parquet"))
+    assert not list(out.rglob("*.partial")) and not list(out.rglob("*.parquet"))
     assert manifest_of(out)["complete"] is False
 
 
