@@ -143,3 +143,14 @@ def test_bad_options_exit_2(data, options, expected):
                                  "--quiet", *options])
     assert result.exit_code == 2, result.output
     assert expected in result.output
+
+
+def test_out_in_a_read_only_folder_is_one_error_line(data, read_only_folder):
+    out = read_only_folder / "m.json"
+    result = invoke(data, "--out", str(out))
+    assert (result.exit_code, result.output) == (2, f"error: cannot write {out}: Read-only file system\n")
+
+
+def test_out_naming_a_folder_is_refused_before_any_work(data, tmp_path):
+    result = invoke(data, "--out", str(tmp_path))
+    assert (result.exit_code, result.output) == (2, f"error: cannot write {tmp_path}: it is a folder\n")
