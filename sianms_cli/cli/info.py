@@ -21,11 +21,14 @@ def info_cli(
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
     as_json: bool = typer.Option(False, "--json", help="Print the figures as JSON."),
 ) -> None:
-    """Describe a nuScenes-format dataset: counts, class mix, LiDAR points, overlap share.
+    """Describe a nuScenes-format dataset and hold each figure against real nuScenes.
 
-    Scenes, samples, annotations per category, objects per keyframe, LiDAR points per
-    annotation and per sweep, visibility and attribute shares, and the share of car
-    annotations in the camera-overlap region.
+    Scenes, samples, annotations per category, objects per keyframe (by class), LiDAR points
+    per annotation and per sweep, visibility and attribute shares; how often one object is
+    imaged twice: image boxes per 3-D box (the devkit's 2-D export rule) and the share imaged
+    by >= 2 cameras by class and by distance, the cars' camera-overlap share, their azimuth
+    and heading-to-axis histograms; and how much of the ego's driving goes straight. Each
+    figure prints beside its nuScenes value and source.
     """
     from sianms_cli.reporting.dataset_summary import InfoConfig, format_summary, run
 

@@ -1,7 +1,13 @@
 """Figures that describe a nuScenes-format dataset, for `sianms info`.
 
-The same figures are published for real nuScenes (``shared/reference/nuscenes.md`` §9),
-so a synthetic dataroot can be compared with the real one line by line.
+The same figures are published for real nuScenes (``shared/reference/nuscenes.md`` §9), so
+any dataroot, synthetic or real, can be held against the real one line by line: the text
+report prints each figure beside its nuScenes value and source
+(:mod:`sianms_cli.reporting.nuscenes_reference`). The figures that decide how often one object
+is seen twice, which siaNMS exists for, are the image boxes per 3-D box (the devkit's 2-D
+export rule, :mod:`sianms_cli.reporting.image_boxes`), the share imaged by two or more cameras
+by class and distance, the overlap share, the car azimuth and heading histograms and the ego's
+turns (:mod:`sianms_cli.reporting.ego_motion`).
 """
 
 from __future__ import annotations
@@ -13,14 +19,24 @@ from pathlib import Path
 import numpy as np
 
 from sianms_cli.errors import SianmsError
+from sianms_cli.geometry.quaternion import quat_to_matrix
 from sianms_cli.io import check_writable_output, write_json
 from sianms_cli.progress import SILENT, Progress
+from sianms_cli.nuscenes.classes import CATEGORY_TO_DETECTION, DETECTION_CLASSES
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.overlap import box_overlap_pairs, centers_in_ego, lidar_ego_poses
 from sianms_cli.nuscenes.tables import check_version_name
+from sianms_cli.reporting.ego_motion import COMMAND_LATERAL_M, TURN_DEGREES, ego_motion
+from sianms_cli.reporting.image_boxes import annotation_image_boxes
+from sianms_cli.reporting.nuscenes_reference import REFERENCE, reference_json
 
 CAR = "vehicle.car"
+HUMAN_PREFIX = "human."  # the devkit#457 "humans": every human.* category
 CAR_EVAL_RANGE = 50.0  # the devkit's class range for cars (detection_cvpr_2019)
+DISTANCE_BANDS_M = (0.0, 10.0, 20.0, 30.0, 50.0)
+AZIMUTH_BIN_DEGREES = 15.0
+FORE_AFT_DEGREES = 15.0  # half-width of the fore-aft sectors (ahead and behind)
+HEADING_BIN_DEGREES = 5.0
 VISIBILITY_LEVELS = {"1": "v0-40", "2": "v40-60", "3": "v60-80", "4": "v80-100"}
 
 
@@ -58,9 +74,16 @@ def summarize(db: NuScenesDB, max_sweeps: int = 200, progress: Progress = SILENT
     per_sample = np.bincount(sample_rows, minlength=n_samples)
     cars_per_sample = np.bincount(sample_rows[categories == CAR], minlength=n_samples)
     lidar_points = annotations.column("num_lidar_pts").astype(np.int64)
-    overlap, distance = _overlap_and_distance(db)
+    overlap, centers_ego, ego_rotation = _overlap_and_ego_frame(db)
+    distance = np.hypot(centers_ego[:, 0], centers_ego[:, 1])
     cars = categories == CAR
-    cars_in_range = cars & (distance < CAR_EVAL_RANGE) & (lidar_points > 0)
+    cars_within_50m = cars & (distance < CAR_EVAL_RANGE)
+    cars_in_range = cars_within_50m & (lidar_points > 0)
+    classes, humans = _detection_classes(categories)
+    image = annotation_image_boxes(db, progress)
+    cameras = image.imaged.sum(axis=1)
+    heading_ego = _headings_in_ego(annotations.column("rotation")[cars_within_50m],
+                                   ego_rotation[sample_rows[cars_within_50m]])
     return {
         "dataroot": str(db.dataroot),
         "version": db.version,
@@ -71,6 +94,8 @@ def summarize(db: NuScenesDB, max_sweeps: int = 200, progress: Progress = SILENT
         "annotations": len(annotations),
         "annotations_per_category": dict(Counter(categories.tolist()).most_common()),
         "objects_per_keyframe": _distribution(per_sample),
+        "objects_per_keyframe_by_class": {
+            name: float(np.sum(classes == name) / max(n_samples, 1)) for name in DETECTION_CLASSES},
         "cars_per_keyframe": _distribution(cars_per_sample),
         "cars_per_keyframe_within_50m": float(np.sum(cars_in_range) / max(n_samples, 1)),
         "lidar_points_per_annotation": float(lidar_points.mean()) if len(lidar_points) else 0.0,
@@ -82,7 +107,113 @@ def summarize(db: NuScenesDB, max_sweeps: int = 200, progress: Progress = SILENT
         "car_share_in_overlap": _share(overlap[cars]),
         "car_share_in_overlap_within_50m_with_points": _share(overlap[cars_in_range]),
         "car_annotations_in_overlap": int(np.sum(overlap & cars)),
+        "image_boxes": {
+            "cameras": list(image.channels),
+            **camera_count_figures(cameras),
+            "boxes_by_camera_count": np.bincount(cameras, minlength=len(image.channels) + 1).tolist(),
+            "humans": camera_count_figures(cameras[humans]),
+            "by_class": {name: camera_count_figures(cameras[classes == name])
+                         for name in DETECTION_CLASSES if np.any(classes == name)},
+            "cars_within_50m_with_points_by_distance": distance_band_figures(
+                distance[cars_in_range], cameras[cars_in_range], DISTANCE_BANDS_M),
+        },
+        "car_azimuth_within_50m": azimuth_figures(centers_ego[cars_within_50m, :2]),
+        "car_heading_to_axis_within_50m": heading_to_axis_figures(heading_ego),
+        "ego_motion": ego_motion(db),
+        "nuscenes_reference": reference_json(),
     }
+
+
+def camera_count_figures(cameras: np.ndarray) -> dict:
+    """Image boxes per 3-D box and the shares imaged by >= 2 and by no camera.
+
+    Args:
+        cameras: (N,) how many cameras image each 3-D box.
+    """
+    return {
+        "boxes_3d": int(len(cameras)),
+        "image_boxes": int(np.sum(cameras)),
+        "per_3d_box": float(np.mean(cameras)) if len(cameras) else None,
+        "share_imaged_by_2_or_more": _share(cameras >= 2),
+        "share_imaged_by_none": _share(cameras == 0),
+    }
+
+
+def distance_band_figures(distance: np.ndarray, cameras: np.ndarray, edges: tuple[float, ...]) -> dict:
+    """The share imaged by >= 2 cameras in each ego-distance band [lo, hi) metres.
+
+    Args:
+        distance: (N,) xy distance to the ego, metres.
+        cameras: (N,) how many cameras image each box.
+        edges: increasing band edges, metres.
+    """
+    band = np.searchsorted(np.asarray(edges), distance, side="right") - 1
+    figures = {}
+    for i, (low, high) in enumerate(zip(edges[:-1], edges[1:])):
+        members = band == i
+        figures[f"{low:g}-{high:g}"] = {"boxes_3d": int(members.sum()),
+                                        "share_imaged_by_2_or_more": _share(cameras[members] >= 2)}
+    return figures
+
+
+def azimuth_figures(xy_ego: np.ndarray) -> dict:
+    """Histogram of the azimuth (ego frame, 0 ahead, CCW) of box centres, and its fore-aft share.
+
+    Real cars concentrate ahead of and behind the ego (same lane); azimuth decides which
+    cameras, and which seams, see an object.
+
+    Args:
+        xy_ego: (N, 2) centres in the ego frame.
+
+    Returns:
+        counts per ``AZIMUTH_BIN_DEGREES`` bin from -180°, the share within ``FORE_AFT_DEGREES``
+        of the fore-aft axis (ahead or behind; 60/360 if uniform) and the number of empty bins.
+    """
+    azimuth = np.degrees(np.arctan2(xy_ego[:, 1], xy_ego[:, 0]))
+    counts, _ = np.histogram(azimuth, bins=np.arange(-180.0, 180.0 + AZIMUTH_BIN_DEGREES, AZIMUTH_BIN_DEGREES))
+    from_axis = np.minimum(np.abs(azimuth), 180.0 - np.abs(azimuth))
+    return {
+        "boxes": int(len(azimuth)),
+        "bin_degrees": AZIMUTH_BIN_DEGREES,
+        "counts_from_minus_180": counts.tolist(),
+        "share_within_15deg_of_fore_aft_axis": _share(from_axis <= FORE_AFT_DEGREES),
+        "empty_bins": int(np.sum(counts == 0)) if len(azimuth) else None,
+    }
+
+
+def heading_to_axis_figures(heading_ego: np.ndarray) -> dict:
+    """Histogram of the angle between each heading and the nearest ego axis (0-45°).
+
+    Parked and same-lane cars sit near 0°; turning, crossing and angled traffic fill the rest.
+
+    Args:
+        heading_ego: (N,) headings in the ego frame, radians.
+    """
+    folded = np.mod(np.degrees(heading_ego), 90.0)
+    to_axis = np.minimum(folded, 90.0 - folded)
+    counts, _ = np.histogram(to_axis, bins=np.arange(0.0, 45.0 + HEADING_BIN_DEGREES, HEADING_BIN_DEGREES))
+    return {
+        "boxes": int(len(to_axis)),
+        "bin_degrees": HEADING_BIN_DEGREES,
+        "counts_from_0": counts.tolist(),
+        "share_within_5deg_of_axis": _share(to_axis < HEADING_BIN_DEGREES),
+    }
+
+
+def _headings_in_ego(box_rotation: np.ndarray, ego_rotation: np.ndarray) -> np.ndarray:
+    """(N,) yaw of each box's forward axis in its ego frame: ``R_ego^T R_box x``."""
+    if len(box_rotation) == 0:
+        return np.zeros(0)
+    forward = np.einsum("nji,nj->ni", quat_to_matrix(ego_rotation), quat_to_matrix(box_rotation)[:, :, 0])
+    return np.arctan2(forward[:, 1], forward[:, 0])
+
+
+def _detection_classes(categories: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) detection class of each annotation ("" when not evaluated) and (N,) is-human."""
+    names, inverse = np.unique(categories, return_inverse=True)
+    classes = np.array([CATEGORY_TO_DETECTION.get(str(name), "") for name in names], dtype="U32")
+    humans = np.array([str(name).startswith(HUMAN_PREFIX) for name in names], dtype=bool)
+    return classes[inverse], humans[inverse]
 
 
 def _distribution(values: np.ndarray) -> dict:
@@ -141,23 +272,23 @@ def _lidar_points_per_sweep(db: NuScenesDB, max_sweeps: int, progress: Progress)
     return {"files": len(chosen), **_distribution(counts)}
 
 
-def _overlap_and_distance(db: NuScenesDB) -> tuple[np.ndarray, np.ndarray]:
+def _overlap_and_ego_frame(db: NuScenesDB) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For every annotation: is its centre in the camera-overlap region of its keyframe (THE
     rule, :func:`sianms_cli.nuscenes.overlap.box_overlap_pairs`, as prepare and metrics decide
-    it), and its xy distance to the ego of its LIDAR_TOP key frame (the devkit's range; inf
-    without one)."""
+    it), and its centre in the ego frame of its LIDAR_TOP key frame (the devkit's range; inf
+    without one); and the (S, 4) ego rotation of every sample."""
     annotations = db.table("sample_annotation")
     centers = annotations.column("translation")
     box_sample = annotations.rows("sample_token")
     overlap = box_overlap_pairs(db, db.table("sample").tokens, box_sample, centers).bits != 0
     rotation, translation, found = lidar_ego_poses(db, np.arange(len(db.table("sample"))))
-    centers_ego = centers_in_ego(centers, box_sample, rotation, translation)
-    distance = np.where(found[box_sample], np.hypot(centers_ego[:, 0], centers_ego[:, 1]), np.inf)
-    return overlap, distance
+    centers_ego = np.where(found[box_sample, None], centers_in_ego(centers, box_sample, rotation, translation),
+                           np.inf)
+    return overlap, centers_ego, rotation
 
 
 def format_summary(summary: dict) -> str:
-    """The summary as an aligned text report."""
+    """The summary as an aligned text report: each figure as "ours | nuScenes value (source)"."""
     lines = [
         f"{summary['dataroot']}  {summary['version']}",
         f"  scenes {summary['scenes']}, samples {summary['samples']}, sample_data {summary['sample_data']}, "
@@ -171,12 +302,22 @@ def format_summary(summary: dict) -> str:
     cars = summary["cars_per_keyframe"]
     lines += [
         f"  objects per keyframe: mean {objects['mean']:.1f}, median {objects['median']:.0f}, "
-        f"p10-p90 {objects['p10']:.0f}-{objects['p90']:.0f}, max {objects['max']}",
+        f"p10-p90 {objects['p10']:.0f}-{objects['p90']:.0f}, max {objects['max']}"
+        + _versus("objects_per_keyframe"),
+        "  objects per keyframe by detection class:" + _versus("objects_per_keyframe_by_class"),
+    ]
+    by_class = REFERENCE["objects_per_keyframe_by_class"].value
+    for name, value in summary["objects_per_keyframe_by_class"].items():
+        lines.append(f"    {name:<22} {value:6.2f} | nuScenes {by_class[name]:5.2f}")
+    lines += [
         f"  cars per keyframe: mean {cars['mean']:.1f} (within 50 m with LiDAR points: "
         f"{summary['cars_per_keyframe_within_50m']:.1f})",
-        f"  LiDAR points per annotation: mean {summary['lidar_points_per_annotation']:.1f}, "
-        f"without any point {_percent(summary['share_annotations_without_lidar_points'])}",
-        "  visibility: " + ", ".join(f"{k} {_percent(v)}" for k, v in summary["visibility_shares"].items()),
+        f"  LiDAR points per annotation: mean {summary['lidar_points_per_annotation']:.1f}"
+        + _versus("lidar_points_per_annotation"),
+        f"  annotations without any LiDAR point: {_percent(summary['share_annotations_without_lidar_points'])}"
+        + _versus("share_annotations_without_lidar_points"),
+        "  visibility: " + ", ".join(f"{k} {_percent(v)}" for k, v in summary["visibility_shares"].items())
+        + _versus("visibility_shares"),
         "  vehicle attributes: " + ", ".join(
             f"{k.split('.')[-1]} {_percent(v)}" for k, v in summary["vehicle_attribute_shares"].items()),
     ]
@@ -185,11 +326,83 @@ def format_summary(summary: dict) -> str:
         "  LiDAR points per sweep: " + (
             f"mean {sweeps['mean']:.0f}, p10-p90 {sweeps['p10']:.0f}-{sweeps['p90']:.0f}, "
             f"max {sweeps['max']} over {sweeps['files']} keyframe files" if sweeps
-            else "not measured (--max-sweeps 0)" if summary["max_sweeps"] == 0 else "no LiDAR files"))
+            else "not measured (--max-sweeps 0)" if summary["max_sweeps"] == 0 else "no LiDAR files")
+        + _versus("lidar_points_per_sweep"))
+    lines += _image_box_lines(summary["image_boxes"])
     lines.append(
         f"  cars in the camera-overlap region: {_percent(summary['car_share_in_overlap'])} of all car annotations, "
-        f"{_percent(summary['car_share_in_overlap_within_50m_with_points'])} of those within 50 m with LiDAR points")
+        f"{_percent(summary['car_share_in_overlap_within_50m_with_points'])} of those within 50 m with LiDAR points"
+        + _versus("car_share_in_overlap"))
+    lines += _angle_lines(summary["car_azimuth_within_50m"], summary["car_heading_to_axis_within_50m"])
+    lines += _ego_lines(summary["ego_motion"])
     return "\n".join(lines)
+
+
+def _image_box_lines(image: dict) -> list[str]:
+    """The duplicate figures: image boxes per 3-D box and the share imaged twice, by class and range."""
+    humans = image["humans"]
+    lines = [
+        f"  image boxes (devkit 2-D export rule over {len(image['cameras'])} cameras):",
+        f"    per 3-D box: {_number(image['per_3d_box'], 3)}" + _versus("image_boxes_per_3d_box"),
+        f"    per human 3-D box: {_number(humans['per_3d_box'], 3)}" + _versus("human_image_boxes_per_3d_box"),
+        f"    3-D boxes imaged by >= 2 cameras: {_percent(image['share_imaged_by_2_or_more'])}"
+        + _versus("share_imaged_by_2_or_more"),
+        f"    human 3-D boxes imaged by >= 2 cameras: {_percent(humans['share_imaged_by_2_or_more'])}"
+        + _versus("human_share_imaged_by_2_or_more"),
+        f"    3-D boxes imaged by no camera: {_percent(image['share_imaged_by_none'])}",
+        f"    {'class':<22} {'3-D boxes':>9} {'per box':>8} {'>= 2 cameras':>13}",
+    ]
+    for name, figures in image["by_class"].items():
+        lines.append(f"    {name:<22} {figures['boxes_3d']:>9} {_number(figures['per_3d_box'], 3):>8} "
+                     f"{_percent(figures['share_imaged_by_2_or_more']):>13}")
+    lines.append("    cars within 50 m with LiDAR points imaged by >= 2 cameras: " + ", ".join(
+        f"{band} m {_percent(figures['share_imaged_by_2_or_more'])} ({figures['boxes_3d']})"
+        for band, figures in image["cars_within_50m_with_points_by_distance"].items()))
+    return lines
+
+
+def _angle_lines(azimuth: dict, heading: dict) -> list[str]:
+    """Where cars stand around the ego and how they are turned against its axes."""
+    return [
+        f"  car azimuth within 50 m ({azimuth['bin_degrees']:g} deg bins, {azimuth['boxes']} cars): "
+        f"within {FORE_AFT_DEGREES:g} deg of the fore-aft axis "
+        f"{_percent(azimuth['share_within_15deg_of_fore_aft_axis'])}, "
+        f"empty bins {azimuth['empty_bins']} of {len(azimuth['counts_from_minus_180'])}"
+        + _versus("car_share_within_15deg_of_fore_aft_axis"),
+        "    from -180 deg: " + _shares(azimuth["counts_from_minus_180"]),
+        f"  car heading to the nearest ego axis within 50 m ({heading['bin_degrees']:g} deg bins): "
+        f"within {heading['bin_degrees']:g} deg {_percent(heading['share_within_5deg_of_axis'])}"
+        + _versus("car_share_heading_within_5deg_of_axis"),
+        "    from 0 deg: " + _shares(heading["counts_from_0"]),
+    ]
+
+
+def _ego_lines(motion: dict) -> list[str]:
+    """How much of the driving is simply going straight."""
+    return [
+        f"  ego going straight (|lateral| < {COMMAND_LATERAL_M:g} m at 3 s): "
+        f"{_percent(motion['share_keyframes_go_straight'])} of {motion['keyframes_with_command']} keyframes"
+        + _versus("share_keyframes_go_straight"),
+        f"  scenes not simply going straight: {_percent(motion['share_scenes_not_straight'])} of "
+        f"{motion['scenes']} (heading span > {TURN_DEGREES:g} deg: {_percent(motion['share_scenes_turning'])})"
+        + _versus("share_scenes_not_straight"),
+    ]
+
+
+def _versus(key: str) -> str:
+    """" | nuScenes VALUE (SOURCE)" for a figure of :data:`REFERENCE`."""
+    reference = REFERENCE[key]
+    return f" | nuScenes {reference.text} ({reference.source})"
+
+
+def _shares(counts: list[int]) -> str:
+    """Histogram counts as whole percentages of their total."""
+    total = max(sum(counts), 1)
+    return " ".join(f"{100 * count / total:.0f}" for count in counts) + " %"
+
+
+def _number(value: float | None, digits: int) -> str:
+    return "n/a" if value is None else f"{value:.{digits}f}"
 
 
 def _percent(value: float | None) -> str:

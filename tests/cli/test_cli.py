@@ -29,9 +29,14 @@ def test_info_as_json_and_as_text(synthetic_dataroot, tmp_path):
     summary = json.loads(result.output)
     assert summary["scenes"] == 2 and summary["samples"] == 6
     assert summary["lidar_points_per_sweep"]["files"] == 6
+    assert summary["image_boxes"]["boxes_3d"] == summary["annotations"]
+    assert {"car_azimuth_within_50m", "car_heading_to_axis_within_50m", "ego_motion",
+            "nuscenes_reference"} <= set(summary)
     text = runner.invoke(app, ["info", "--dataroot", dataroot, "--quiet"]).output
     assert "cars in the camera-overlap region" in text
     assert "LiDAR points per sweep: mean" in text
+    assert "  image boxes (devkit 2-D export rule over 6 cameras):\n    per 3-D box: " in text
+    assert " | nuScenes 1.215 (v1.0-trainval, 1,416,337 2-D from 1,166,187 3-D boxes" in text
 
 
 def test_info_writes_its_figures_to_out_once(synthetic_dataroot, tmp_path):

@@ -1,0 +1,104 @@
+import json
+
+import numpy as np
+import pytest
+
+from sianms_cli.geometry.quaternion import yaw_to_quat
+from sianms_cli.nuscenes.classes import CATEGORY_TO_DETECTION, DETECTION_CLASSES
+from sianms_cli.nuscenes.loader import NuScenesDB
+from sianms_cli.reporting.dataset_summary import (
+    InfoConfig,
+    _headings_in_ego,
+    azimuth_figures,
+    camera_count_figures,
+    distance_band_figures,
+    format_summary,
+    heading_to_axis_figures,
+    run,
+    summarize,
+)
+from sianms_cli.reporting.nuscenes_reference import REFERENCE
+
+
+def test_camera_count_figures():
+    figures = camera_count_figures(np.array([0, 1, 1, 2, 3, 1, 2, 0]))
+    assert figures == {"boxes_3d": 8, "image_boxes": 10, "per_3d_box": 1.25, "share_imaged_by_2_or_more": 0.375,
+                       "share_imaged_by_none": 0.25}
+    assert camera_count_figures(np.zeros(0, dtype=int))["per_3d_box"] is None
+
+
+def test_distance_bands_are_half_open_and_end_at_the_last_edge():
+    distance = np.array([0.0, 9.99, 10.0, 19.0, 30.0, 49.9, 50.0, 80.0])
+    cameras = np.array([2, 1, 2, 2, 1, 3, 2, 2])
+    figures = distance_band_figures(distance, cameras, (0.0, 10.0, 20.0, 30.0, 50.0))
+    assert figures == {
+        "0-10": {"boxes_3d": 2, "share_imaged_by_2_or_more": 0.5},
+        "10-20": {"boxes_3d": 2, "share_imaged_by_2_or_more": 1.0},
+        "20-30": {"boxes_3d": 0, "share_imaged_by_2_or_more": None},
+        "30-50": {"boxes_3d": 2, "share_imaged_by_2_or_more": 0.5},
+    }
+
+
+def test_azimuth_histogram_and_fore_aft_share():
+    degrees = np.array([1.0, 14.0, 20.0, 90.0, 179.0, -170.0, -164.0, -100.0])
+    xy = np.c_[np.cos(np.radians(degrees)), np.sin(np.radians(degrees))] * 20.0
+    figures = azimuth_figures(xy)
+    expected = np.zeros(24, dtype=int)
+    np.add.at(expected, [12, 12, 13, 18, 23, 0, 1, 5], 1)
+    assert figures["counts_from_minus_180"] == expected.tolist()
+    # within 15 deg of ahead or behind: 1, 14, 179, -170 (-164 is 16 deg from behind)
+    assert figures["share_within_15deg_of_fore_aft_axis"] == 4 / 8
+    assert figures["empty_bins"] == 24 - 7
+    assert azimuth_figures(np.zeros((0, 2)))["share_within_15deg_of_fore_aft_axis"] is None
+
+
+def test_heading_to_axis_folds_onto_0_45():
+    headings = np.radians([0.0, 91.0, -178.0, 44.0, 46.0, 270.0, 4.0, 6.0])
+    figures = heading_to_axis_figures(headings)
+    # folded: 0, 1, 2, 44, 44, 0, 4, 6
+    assert figures["counts_from_0"] == [5, 1, 0, 0, 0, 0, 0, 0, 2]
+    assert figures["share_within_5deg_of_axis"] == 5 / 8
+
+
+def test_headings_in_ego_subtract_the_ego_yaw():
+    heading = _headings_in_ego(yaw_to_quat(np.radians([100.0, -170.0])), yaw_to_quat(np.radians([90.0, 170.0])))
+    assert np.degrees(heading) == pytest.approx([10.0, 20.0])
+
+
+def test_summary_figures_are_consistent(tiny_dataroot):
+    db = NuScenesDB(tiny_dataroot, "v1.0-mini")
+    summary = summarize(db, max_sweeps=0)
+    image = summary["image_boxes"]
+    assert len(image["cameras"]) == 6
+    assert image["boxes_3d"] == summary["annotations"] == sum(image["boxes_by_camera_count"])
+    assert image["image_boxes"] == sum(k * n for k, n in enumerate(image["boxes_by_camera_count"]))
+    assert image["per_3d_box"] == pytest.approx(image["image_boxes"] / image["boxes_3d"])
+    assert set(image["by_class"]) <= set(DETECTION_CLASSES)
+    evaluated = sum(count for name, count in summary["annotations_per_category"].items()
+                    if name in CATEGORY_TO_DETECTION)
+    assert sum(figures["boxes_3d"] for figures in image["by_class"].values()) == evaluated
+    humans = sum(count for name, count in summary["annotations_per_category"].items() if name.startswith("human."))
+    assert image["humans"]["boxes_3d"] == humans
+    by_distance = image["cars_within_50m_with_points_by_distance"]
+    assert sum(band["boxes_3d"] for band in by_distance.values()) == round(
+        summary["cars_per_keyframe_within_50m"] * summary["samples"])
+    assert sum(summary["car_azimuth_within_50m"]["counts_from_minus_180"]) == \
+        summary["car_heading_to_axis_within_50m"]["boxes"]
+    by_class = summary["objects_per_keyframe_by_class"]
+    cars = summary["annotations_per_category"].get("vehicle.car", 0)
+    assert by_class["car"] == pytest.approx(cars / summary["samples"])
+    assert set(summary["nuscenes_reference"]) == set(REFERENCE)
+
+
+def test_text_report_holds_each_figure_against_nuscenes(tiny_dataroot):
+    text = format_summary(summarize(NuScenesDB(tiny_dataroot, "v1.0-mini"), max_sweeps=0))
+    for key, reference in REFERENCE.items():
+        assert f"| nuScenes {reference.text} ({reference.source})" in text, key
+    assert "3-D boxes imaged by >= 2 cameras: " in text
+    assert "cars within 50 m with LiDAR points imaged by >= 2 cameras: 0-10 m" in text
+
+
+def test_run_writes_the_json_it_returns(tiny_dataroot, tmp_path):
+    out = tmp_path / "info.json"
+    summary = run(InfoConfig(str(tiny_dataroot), max_sweeps=0), out)
+    assert json.loads(out.read_text()) == json.loads(json.dumps(summary))
