@@ -4,7 +4,12 @@ Runs the generator in a fresh child process per measurement (so peak RSS is the 
 own) and prints, next to the absolute figures, two ratios measured in the same run:
 
 - time per sample against the *I/O floor*: encoding and writing the same number of JPEG
-  images and LiDAR files of the same sizes, which any generator of this dataset pays;
+  images and LiDAR files (key frame and the 9 sweeps before it) of the same sizes, which
+  any generator of this dataset pays;
+- the LiDAR ray casting of one sweep (raster cull + pair test of lidar.py) against the
+  general bundle-culled caster (raycast.intersect_parts) on the same rays and parts of a
+  generated scene, with the same hits: the speed-up that lets synth cast ten sweeps per
+  key frame;
 - peak memory of a run with twice the scenes against the run itself, which must stay
   near 1.0 because scenes are streamed to disk.
 
@@ -15,6 +20,7 @@ own) and prints, next to the absolute figures, two ratios measured in the same r
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import multiprocessing
 import resource
 import tempfile
@@ -24,9 +30,12 @@ from pathlib import Path
 import numpy as np
 
 from sianms_cli.nuscenes.sensors import write_jpeg, write_pcd_bin
-from sianms_cli.synth.generate import SynthConfig, run as run_synth
 from sianms_cli.nuscenes.tables import CAMERA_CHANNELS
-from sianms_cli.synth.rig import FULL_IMAGE_SIZE
+from sianms_cli.synth import generate, lidar
+from sianms_cli.synth.generate import AZIMUTH_STEPS, SWEEPS_BETWEEN_KEYFRAMES, SynthConfig, run as run_synth
+from sianms_cli.synth.raycast import intersect_ground, intersect_parts
+from sianms_cli.synth.rig import FULL_IMAGE_SIZE, RIG_BOSTON, normalised_rig
+from sianms_cli.synth.world import plan_scene
 
 
 def _synth_child(out: str, config: SynthConfig, workers: int, queue) -> None:
@@ -50,18 +59,62 @@ def measure_synth(config: SynthConfig, workers: int) -> tuple[float, float]:
 
 
 def measure_io_floor(samples: int, image_scale: float) -> float:
-    """Seconds to encode and write ``samples`` keyframes' worth of files (6 JPEGs, one sweep)."""
+    """Seconds to encode and write ``samples`` keyframes' worth of files (6 JPEGs, 10 sweeps)."""
     rng = np.random.default_rng(0)
     width, height = round(FULL_IMAGE_SIZE[0] * image_scale), round(FULL_IMAGE_SIZE[1] * image_scale)
     image = (rng.random((height, width, 3)) * 40 + 90).astype(np.uint8)  # mid-grey with texture
-    points = rng.normal(0.0, 10.0, (30_000, 5)).astype(np.float32)
+    points = rng.normal(0.0, 10.0, (AZIMUTH_STEPS * 32, 5)).astype(np.float32)
     with tempfile.TemporaryDirectory() as folder:
         start = time.perf_counter()
         for k in range(samples):
             for channel in CAMERA_CHANNELS:
                 write_jpeg(Path(folder) / f"{channel}_{k}.jpg", image)
-            write_pcd_bin(Path(folder) / f"lidar_{k}.pcd.bin", points)
+            for j in range(SWEEPS_BETWEEN_KEYFRAMES + 1):
+                write_pcd_bin(Path(folder) / f"lidar_{k}_{j}.pcd.bin", points)
         return time.perf_counter() - start
+
+
+def scene_rays(seed: int = 0):
+    """Rays (origin, directions), their ground hits and the parts of one key-frame sweep of a
+    generated scene (a still sensor: both casters take the same rays)."""
+    config = SynthConfig(scenes=1, seed=seed, scene_seconds=0.5)
+    plan = plan_scene(generate._scene_rng(seed, 0, "plan"), 1)
+    with tempfile.TemporaryDirectory() as folder:
+        sensing = generate._SceneSensing(plan, normalised_rig(RIG_BOSTON), config, 0, Path(folder), "bench", 0)
+    center, yaw, _ = plan.agents.pose(plan.route, 0.0)
+    ego = sensing._ego_to_global(0.0)
+    parts = sensing._parts_at(center, yaw, np.hypot(*(center[:, :2] - ego[:2, 3]).T) < generate.RENDER_RADIUS)
+    pose = ego @ sensing.lidar_to_ego
+    dirs_lidar, _ = lidar.beam_directions(AZIMUTH_STEPS, sensing.start_azimuth)
+    dirs = dirs_lidar @ pose[:3, :3].T
+    t_ground = intersect_ground(pose[:3, 3], dirs, t_max=100.0)
+    return pose, sensing.start_azimuth, dirs, np.minimum(t_ground, 100.0), parts
+
+
+def raster_cast(pose, start_azimuth, dirs, t_max, parts):
+    """Nearest part hits of one sweep's rays by lidar.py's raster cull and pair test."""
+    origins = np.zeros_like(dirs)
+    level = lidar._level_frame(pose)
+    inflate = np.full(len(parts), 1e-3)
+    margins = lidar._direction_margins(dirs, level, start_azimuth, AZIMUTH_STEPS)
+    ray, part = lidar.candidate_pairs(parts, pose[:3, 3], level, inflate, start_azimuth, AZIMUTH_STEPS, *margins)
+    local = dataclasses.replace(parts, center=parts.center - pose[:3, 3])
+    return lidar._nearest_hits(ray, part, origins, dirs, local, t_max.astype(np.float32), None)
+
+
+def measure_lidar(repeats: int = 5) -> tuple[float, float, int]:
+    """(seconds per sweep raster-culled, seconds bundle-culled, rays whose hit differs), best of ``repeats``."""
+    pose, start_azimuth, dirs, t_max, parts = scene_rays()
+    raster, bundle = [], []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        t_new, part_new, _ = raster_cast(pose, start_azimuth, dirs, t_max, parts)
+        raster.append(time.perf_counter() - start)
+        start = time.perf_counter()
+        t_old, part_old, _, _ = intersect_parts(pose[:3, 3], dirs, parts, t_max=t_max, bundle=32)
+        bundle.append(time.perf_counter() - start)
+    differ = int(np.sum((part_new != part_old) | ~np.isclose(t_new, t_old, rtol=0, atol=1e-4)))
+    return min(raster), min(bundle), differ
 
 
 def main() -> None:
@@ -82,6 +135,10 @@ def main() -> None:
     print(f"  {seconds:.1f} s, {samples / seconds:.2f} samples/s, peak RSS {peak:.0f} MiB")
     print(f"  I/O floor (JPEG + pcd.bin writes of the same sizes): {floor:.1f} s "
           f"-> synth / floor = {seconds / floor:.1f}x")
+
+    raster, bundle, differ = measure_lidar()
+    print(f"  LiDAR ray casting per sweep: raster cull {raster * 1e3:.0f} ms, bundle cull {bundle * 1e3:.0f} ms "
+          f"-> {bundle / raster:.1f}x faster ({differ} of {AZIMUTH_STEPS * 32} rays hit differently)")
 
     small = SynthConfig(scenes=2, image_scale=args.image_scale, scene_seconds=args.memory_scene_seconds)
     large = SynthConfig(scenes=8, image_scale=args.image_scale, scene_seconds=args.memory_scene_seconds)

@@ -3,7 +3,7 @@
 Usage (with the devkit venv's interpreter, see scripts/devkit_venv.sh):
 
     .devkit-venv/bin/python scripts/devkit_dump.py DATAROOT VERSION OUT.json \
-        [--split NAME] [--max-samples N]
+        [--split NAME] [--max-samples N] [--nsweeps 10]
 
 The devkit pins numpy<2 and therefore cannot be imported next to sianms. This script
 runs in the devkit's own environment, imports nothing from sianms, and writes one
@@ -16,6 +16,9 @@ JSON file that our tests (numpy 2, our own loader and geometry) compare against:
   ``view_points(corners, K, normalize=True)`` image coordinates (8x2);
 - ``lidar_files``: ``LidarPointCloud.from_file`` point count of every LIDAR_TOP
   sample_data (key frames and sweeps) whose file exists, plus missing/unreadable ones;
+- ``multisweep``: for each of those key frames, ``LidarPointCloud.from_file_multisweep``
+  with ``--nsweeps`` sweeps of LIDAR_TOP: its point count, the distinct time lags (s)
+  and the mean point (reference LIDAR frame), which pins the sweeps' transform chain;
 - ``annotation_points``: for each annotation of those key frames, the devkit's
   ``points_in_box`` count over the key-frame LIDAR_TOP points (box moved into the
   lidar frame exactly as ``get_sample_data`` does) next to the stored ``num_lidar_pts``;
@@ -74,6 +77,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                              "without it the detection evaluation is skipped")
     parser.add_argument("--max-samples", type=int, default=None,
                         help="limit the per-sample camera and annotation facts to the first N key frames")
+    parser.add_argument("--nsweeps", type=int, default=10,
+                        help="sweeps per key frame for from_file_multisweep (nuScenes detectors use 10)")
     return parser.parse_args(argv)
 
 
@@ -159,6 +164,23 @@ def lidar_point_counts(nusc: NuScenes) -> dict[str, Any]:
         except Exception as exc:  # a corrupt file is a fact to report, not a reason to stop
             unreadable[token] = f"{type(exc).__name__}: {exc}"
     return {"point_counts": counts, "missing": missing, "unreadable": unreadable}
+
+
+def multisweep(nusc: NuScenes, samples: list[dict], nsweeps: int) -> list[dict]:
+    """The devkit's multi-sweep point cloud of each key frame's LIDAR_TOP, summarised."""
+    facts = []
+    for sample in samples:
+        if LIDAR_CHANNEL not in sample["data"]:
+            continue
+        cloud, lags = LidarPointCloud.from_file_multisweep(nusc, sample, LIDAR_CHANNEL, LIDAR_CHANNEL,
+                                                           nsweeps=nsweeps)
+        facts.append({
+            "sample_token": sample["token"],
+            "n_points": int(cloud.nbr_points()),
+            "time_lags": sorted({round(float(lag), 6) for lag in lags[0]}),
+            "mean_point": cloud.points[:3].astype(np.float64).mean(axis=1).tolist(),
+        })
+    return facts
 
 
 def annotation_points(nusc: NuScenes, samples: list[dict]) -> list[dict]:
@@ -315,6 +337,7 @@ def dump(args: argparse.Namespace) -> dict[str, Any]:
         "table_counts": table_counts(nusc),
         "cameras": camera_boxes(nusc, samples),
         "lidar_files": lidar_point_counts(nusc),
+        "multisweep": multisweep(nusc, samples, args.nsweeps),
         "annotation_points": annotation_points(nusc, samples),
         "evaluation": detection_evaluation(nusc, args.split) if args.split else None,
     }
@@ -323,6 +346,7 @@ def dump(args: argparse.Namespace) -> dict[str, Any]:
         "version": args.version,
         "split": args.split,
         "max_samples": args.max_samples,
+        "nsweeps": args.nsweeps,
         "n_samples_dumped": len(samples),
         "devkit_version": importlib.metadata.version("nuscenes-devkit"),
         "numpy_version": np.__version__,

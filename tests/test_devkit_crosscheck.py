@@ -3,9 +3,11 @@
 The devkit pins numpy<2, so it runs in its own virtual environment (built by
 ``scripts/devkit_venv.sh``) through ``scripts/devkit_dump.py``, which writes the facts it
 computes to JSON. This module generates a small synthetic dataroot, has the devkit
-dump it, and compares: the devkit loads it, reads every LIDAR_TOP file, counts exactly
-``num_lidar_pts`` points in every annotated box, scores the ground truth as a perfect
-detector (AP 1) and projects every visible box corner where our geometry does.
+dump it, and compares: the devkit loads it, reads every LIDAR_TOP file (key frames and
+the sweeps between them), stacks ten sweeps per key frame with ``from_file_multisweep``
+as our transform chain does, counts exactly ``num_lidar_pts`` points in every annotated
+box, scores the ground truth as a perfect detector (AP 1) and projects every visible box
+corner where our geometry does.
 
 Skipped when the devkit interpreter is absent: ``.devkit-venv/bin/python`` at the
 repository root, or the interpreter named by ``SIANMS_DEVKIT_PYTHON``.
@@ -24,7 +26,7 @@ import pytest
 
 from sianms_cli.geometry.boxes import box_corners
 from sianms_cli.geometry.projection import BoxVisibility, box_in_image, view_points
-from sianms_cli.geometry.transforms import apply_transform, global_to_sensor
+from sianms_cli.geometry.transforms import apply_transform, global_to_sensor, sensor_to_global
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.splits import split_scene_names
 
@@ -40,6 +42,7 @@ SPLIT = "mini_val"
 SYNTH_ARGS = ["--version", VERSION, "--scenes", "2", "--scene-seconds", "8", "--image-scale", "0.2", "--seed", "0",
               "--quiet"]
 PAPER_CLASSES = ("car", "pedestrian", "bicycle")
+NSWEEPS = 10  # sweeps per key frame stacked by from_file_multisweep (the dump's default)
 
 pytestmark = [
     pytest.mark.devkit,
@@ -100,6 +103,35 @@ def test_devkit_reads_every_lidar_file(facts: dict, db: NuScenesDB) -> None:
     assert sorted(lidar["point_counts"]) == sorted(tokens)
     for token in tokens:
         assert lidar["point_counts"][token] == len(db.read_lidar(token)), token
+
+
+def test_devkit_reads_sweeps_between_key_frames(facts: dict, db: NuScenesDB) -> None:
+    sweeps = ~db.table("sample_data").column("is_key_frame") & (db.sample_data_channels() == "LIDAR_TOP")
+    assert sweeps.sum() == 9 * (len(db.table("sample")) - len(db.table("scene")))
+    assert set(db.table("sample_data").tokens[sweeps].tolist()) <= set(facts["lidar_files"]["point_counts"])
+
+
+def test_devkit_multisweep_stacks_our_sweep_chains(facts: dict, db: NuScenesDB) -> None:
+    stacks = facts["multisweep"]
+    assert len(stacks) == len(db.table("sample"))
+    for stack in stacks:
+        key = db.keyframe_data(stack["sample_token"])["LIDAR_TOP"]
+        reference = db.get("sample_data", key)
+        to_reference = np.linalg.inv(sensor_to_global(*db.ego_pose_of(key), *db.calibration_of(key)[:2]))
+        record, lags, stacked = reference, [], []
+        for _ in range(NSWEEPS):
+            points = db.read_lidar(record["token"])[:, :3]
+            points = points[~((np.abs(points[:, 0]) < 1.0) & (np.abs(points[:, 1]) < 1.0))]  # remove_close(1 m)
+            to_global = sensor_to_global(*db.ego_pose_of(record["token"]), *db.calibration_of(record["token"])[:2])
+            stacked.append(apply_transform(to_reference @ to_global, points.astype(np.float64)))
+            lags.append(round((reference["timestamp"] - record["timestamp"]) * 1e-6, 6))
+            if not record["prev"]:
+                break
+            record = db.get("sample_data", record["prev"])
+        stacked = np.concatenate(stacked)
+        assert stack["n_points"] == len(stacked)
+        assert stack["time_lags"] == sorted(set(lags))
+        np.testing.assert_allclose(stack["mean_point"], stacked.mean(axis=0), rtol=0, atol=1e-4)
 
 
 def test_devkit_points_in_box_equals_num_lidar_pts(facts: dict, db: NuScenesDB) -> None:

@@ -70,8 +70,9 @@ class ProgressBar:
             self.bar.close()
 
 
-def command(name: str) -> Callable[[Callable], Callable]:
-    """Register a subcommand whose failures end in one ``error:`` line, never a traceback.
+def command(name: str, group: typer.Typer | None = None) -> Callable[[Callable], Callable]:
+    """Register a subcommand (of ``group``, default the root) whose failures end in one
+    ``error:`` line, never a traceback.
 
     A user error or an OS error (read-only folder, disk full, a folder where a file should
     be) exits with code 2; an interrupt with 130 (SIGINT) or 143 (SIGTERM), after the
@@ -95,6 +96,6 @@ def command(name: str) -> Callable[[Callable], Callable]:
                            "finished outputs are kept, a rerun resumes or starts afresh", err=True)
                 raise typer.Exit(143 if terminated else 130) from None
 
-        return app.command(name)(run)
+        return (app if group is None else group).command(name)(run)
 
     return register

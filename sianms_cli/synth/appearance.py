@@ -18,6 +18,10 @@ SOLID, TWO_TONE_ROOF, SIDE_STRIPE, LOWER_BODY, DECAL, BACKPACK = range(len(PATTE
 
 CAR_VARIANTS = ("sedan", "hatchback", "suv")
 
+CLUTTER_KINDS = ("tree", "hedge", "fence", "street_light", "utility_pole", "sign", "traffic_light",
+                 "hydrant", "bin", "bollard")
+"""Unannotated street furniture and vegetation (owner -1 scenery, placed by clutter.py)."""
+
 _BLACK = np.zeros(3, np.float32)
 
 
@@ -146,6 +150,18 @@ _FACADE = _palette({
     "pastel_blue": (5, (160, 180, 195)), "pastel_green": (5, (170, 190, 160)),
 })
 
+# Street furniture and vegetation: our own choice of common tones (no published shares).
+# Foliage in summer greens; signs mostly white regulatory and blue / green guide plates.
+_FOLIAGE = _palette({"green": (60, (70, 100, 45)), "dark_green": (30, (45, 75, 35)),
+                     "yellow_green": (10, (110, 125, 55))})
+_BARK = _palette({"brown": (70, (85, 70, 55)), "grey": (30, (110, 105, 95))})
+_FURNITURE = _palette({"black": (35, (30, 30, 32)), "grey": (35, (120, 122, 125)),
+                       "dark_green": (20, (35, 65, 48)), "steel": (10, (165, 168, 170))})
+_POLE = _palette({"wood": (60, (100, 80, 60)), "concrete": (40, (165, 162, 152))})
+_SIGN = _palette({"white": (45, (235, 235, 230)), "red": (20, (185, 30, 30)), "blue": (15, (30, 80, 165)),
+                  "yellow": (10, (235, 195, 40)), "green": (10, (20, 115, 65))})
+_HYDRANT = _palette({"red": (50, (185, 35, 28)), "yellow": (35, (225, 185, 35)), "silver": (15, (175, 175, 172))})
+
 
 def _pick_indexed(palette, rng: np.random.Generator, lightness_sigma: float = 0.12,
                   hue_sigma: float = 0.04) -> tuple[int, np.ndarray]:
@@ -270,6 +286,18 @@ def _sample_static(kind: str, rng: np.random.Generator) -> Appearance:
                       _pick(_FACADE, rng, 0.1, 0.03), gloss=0.0)
 
 
+def _sample_clutter(kind: str, rng: np.random.Generator) -> Appearance:
+    """Street furniture and vegetation: `base` is the main colour (foliage, paint, sign
+    plate), `secondary` the second one (bark, hydrant cap)."""
+    base, secondary = {
+        "tree": (_FOLIAGE, _BARK), "hedge": (_FOLIAGE, _FOLIAGE), "fence": (_FURNITURE, _FURNITURE),
+        "street_light": (_FURNITURE, _FURNITURE), "utility_pole": (_POLE, _POLE), "sign": (_SIGN, _FURNITURE),
+        "traffic_light": (_FURNITURE, _FURNITURE), "hydrant": (_HYDRANT, _HYDRANT), "bin": (_FURNITURE, _FURNITURE),
+        "bollard": (_FURNITURE, _FURNITURE),
+    }[kind]
+    return Appearance(kind, 0, _pick(base, rng), _pick(secondary, rng), gloss=0.0)
+
+
 def sample_appearance(kind: str, rng: np.random.Generator, rider: bool | None = None) -> Appearance:
     """Sample one instance's look with realistic colour frequencies.
 
@@ -290,6 +318,8 @@ def sample_appearance(kind: str, rng: np.random.Generator, rider: bool | None = 
         return _sample_cycle(kind, rng, rider)
     if kind in ("barrier", "traffic_cone", "building"):
         return _sample_static(kind, rng)
+    if kind in CLUTTER_KINDS:
+        return _sample_clutter(kind, rng)
     raise ValueError(f"unknown object kind {kind!r}")
 
 

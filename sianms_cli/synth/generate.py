@@ -1,10 +1,26 @@
 """`sianms synth`: write a synthetic dataset in the nuScenes v1.0 on-disk format.
 
 Scenes are generated one after the other and streamed to disk: a scene is planned
-(street, traffic, ego drive), then every keyframe is sensed — the LiDAR ray-cast, the six
-cameras rendered with a depth buffer — and its sensor files written; once the scene's
-last keyframe is done its table records are appended. Memory is therefore bounded by one
-scene, whatever the number of scenes.
+(street, traffic, ego drive), then every keyframe is sensed — the LiDAR sweeps since the
+previous keyframe and the keyframe's own sweep ray-cast, the six cameras rendered with a
+depth buffer — and its sensor files written; once the scene's last keyframe is done its
+table records are appended. Memory is therefore bounded by one scene, whatever the number
+of scenes.
+
+LiDAR: 20 Hz sweeps, so nine sweeps (``sweeps/LIDAR_TOP``, ``is_key_frame`` false, the
+sample_token of the following keyframe, as in nuScenes) between two keyframes; one LIDAR_TOP
+prev/next chain runs through sweeps and keyframes from the first keyframe to the last. Each
+column of a sweep fires at its own time from the ego pose of that time, moving objects are
+where they are then, and the points are expressed in the sensor frame at the sweep's
+timestamp (the time of its last column): motion-compensated as nuScenes sweeps are, while
+moving objects smear. ``--sensors none`` writes tables only, so it casts only keyframe sweeps
+(for ``num_lidar_pts``) and lists no sweep records: a record whose file is missing would
+break readers that follow the chain.
+
+Sensors are rendered and scanned with a true calibration that differs from the written
+calibrated_sensor record by a residual (see :func:`rig.true_calibration`), as a real car's
+is; ``num_lidar_pts`` is counted from the written records and the float32 file exactly as
+the devkit counts it (see :mod:`devkit_count`).
 
 Each scene draws from its own random generator seeded by ``(seed, scene index)``, so the
 same seed gives byte-identical files and a scene does not change when others are added.
@@ -28,9 +44,8 @@ import numpy as np
 
 from sianms_cli import __version__, io
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
-from sianms_cli.geometry.boxes import count_points_in_boxes
 from sianms_cli.geometry.quaternion import matrix_to_quat, yaw_to_quat
-from sianms_cli.geometry.transforms import apply_transform, make_transform
+from sianms_cli.geometry.transforms import make_transform
 from sianms_cli.nuscenes.splits import splits_for_version
 from sianms_cli.nuscenes.tables import CAMERA_CHANNELS, SENSORS, check_version_name
 from sianms_cli.nuscenes.sensors import write_jpeg, write_pcd_bin
@@ -39,15 +54,21 @@ from sianms_cli.processes import worker_pool
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.synth.appearance import camera_style, sample_appearance
 from sianms_cli.synth.camera import render_camera
+from sianms_cli.synth.clutter import clutter_parts, road_user_boxes
+from sianms_cli.synth.devkit_count import boxes_in_sensor_frame, count_points_in_boxes
 from sianms_cli.synth.lidar import scan_lidar
 from sianms_cli.synth.rig import (
     CAMERA_TRIGGER_OFFSET_US,
     FULL_IMAGE_SIZE,
     LIDAR_CHANNEL,
+    LIDAR_HZ,
     RIG_BOSTON,
     RIG_SINGAPORE,
     SensorCalibration,
+    lidar_column_seconds,
+    lidar_start_azimuth,
     normalised_rig,
+    true_calibration,
 )
 from sianms_cli.synth.shapes import Parts, concat_parts, object_parts, place_parts
 from sianms_cli.synth.world import (
@@ -61,13 +82,15 @@ from sianms_cli.synth.world import (
 
 MARKER_NAME = "sianms-synth.json"  # provenance marker at the dataroot's top
 MARKER_KIND = "sianms synth dataroot"
-DATAROOT_FOLDERS = ("samples", "sweeps", "maps")  # a dataroot's data folders (synth writes no sweeps yet)
+DATAROOT_FOLDERS = ("samples", "sweeps", "maps")  # a dataroot's data folders
 
 SENSOR_MODES = ("all", "none")
 RENDER_RADIUS = 130.0  # objects farther than this from the ego are not drawn or scanned
 SHAPE_MARGIN = 0.04  # annotated boxes enclose the object's surface with this margin (m)
 VISIBILITY_SCALE = 0.125  # image scale of the renders that measure visibility with --sensors none
 VISIBILITY_BINS = (0.4, 0.6, 0.8)  # upper bounds of visibility tokens "1", "2", "3"
+AZIMUTH_STEPS = 1084  # HDL-32E columns per revolution at 20 Hz (see lidar.py)
+SWEEPS_BETWEEN_KEYFRAMES = int(round(LIDAR_HZ / KEYFRAME_HZ)) - 1  # 9 non-key-frame LiDAR sweeps
 
 SENSOR_TOKENS = {sensor.channel: sensor.token for sensor in SENSORS}
 LOCATIONS = {  # location -> (vehicle, rig, drive side, UTC offset)
@@ -345,6 +368,7 @@ class _Frame:
     annotated: np.ndarray  # (N,) bool: agent within the annotation radius
     center: np.ndarray  # (N,3)
     yaw: np.ndarray  # (N,)
+    rotation: np.ndarray  # (N,4) yaw quaternions, the annotation records' values
     attributes: np.ndarray  # (N,) names
     lidar_points: np.ndarray  # (N,) int64 points inside each box
     visibility: np.ndarray  # (N,) visible fraction across all cameras, NaN when unseen
@@ -390,6 +414,11 @@ def _scene_record_stream(staging: Path, config: SynthConfig, index: int, name: s
     scene_token = make_token("scene", seed, name)
     sample_data_records: dict[str, list[dict]] = {channel: [] for channel in CAMERA_CHANNELS + (LIDAR_CHANNEL,)}
     for k in range(n_keyframes):
+        if k > 0 and config.sensors == "all":
+            for j in range(1, SWEEPS_BETWEEN_KEYFRAMES + 1):
+                sample_data, ego_pose = scene.sense_sweep(k, j, sample_tokens[k], calibration_tokens)
+                sample_data_records[LIDAR_CHANNEL].append(sample_data)
+                yield "ego_pose", ego_pose
         frame, records = scene.sense_keyframe(k, sample_tokens[k], calibration_tokens, image_size)
         frames.append(frame)
         for channel, (sample_data, ego_pose) in records.items():
@@ -425,6 +454,11 @@ def _scene_record_stream(staging: Path, config: SynthConfig, index: int, name: s
 
 def _keyframe_offset_us(k: int) -> int:
     return int(round(k * 1e6 / KEYFRAME_HZ))
+
+
+def _sweep_offset_us(k: int, j: int) -> int:
+    """Time of sweep ``j`` (1..9) after keyframe ``k - 1``, from the scene start (µs)."""
+    return _keyframe_offset_us(k - 1) + int(round(j * 1e6 / LIDAR_HZ))
 
 
 def _scene_start(seed: int, index: int) -> dt.datetime:
@@ -471,7 +505,12 @@ class _SceneSensing:
         self.staging = staging
         self.logfile = logfile
         self.start_us = start_us
-        self.calibration = {c.channel: c for c in rig}
+        self.calibration = {c.channel: c for c in rig}  # as written
+        residual_rng = _scene_rng(config.seed, index, "calibration-residual")
+        self.true_calibration = {c.channel: true_calibration(c, residual_rng) for c in rig}  # as sensed
+        lidar = self.true_calibration[LIDAR_CHANNEL]
+        self.lidar_to_ego = make_transform(lidar.rotation, lidar.translation)
+        self.start_azimuth = lidar_start_azimuth(lidar, self.true_calibration["CAM_FRONT"], AZIMUTH_STEPS)
         rng = _scene_rng(config.seed, index, "appearance")
         agents = plan.agents
         self.appearances = [
@@ -483,14 +522,18 @@ class _SceneSensing:
             for owner, (category, size, appearance) in enumerate(zip(agents.category, agents.size, self.appearances))
         ])
         self.scenery = concat_parts([
-            _owned(object_parts("building", b.size, sample_appearance("building", rng)), -1, b.center, b.yaw)
-            for b in plan.buildings
+            *(_owned(object_parts("building", b.size, sample_appearance("building", rng)), -1,
+                     (b.center[0], b.center[1], b.size[2] / 2), b.yaw)
+              for b in plan.buildings),
+            clutter_parts(plan.street, _scene_rng(config.seed, index, "clutter"), plan.buildings,
+                          road_user_boxes(plan.agents, plan.route)),
         ])
         style_rng = _scene_rng(config.seed, index, "camera-style")
         self.styles = {channel: camera_style(style_rng) for channel in CAMERA_CHANNELS}
         self.sun = _sun_direction(_scene_rng(config.seed, index, "sun"))
         # Separate streams, so the LiDAR (and num_lidar_pts) is the same with --sensors none.
         self.lidar_rng = _scene_rng(config.seed, index, "lidar-noise")
+        self.sweep_rng = _scene_rng(config.seed, index, "lidar-sweeps")
         self.camera_rng = _scene_rng(config.seed, index, "camera-noise")
 
     def sense_keyframe(self, k: int, sample_token: str, calibration_tokens: dict, image_size) -> tuple[_Frame, dict]:
@@ -504,16 +547,13 @@ class _SceneSensing:
         near = distance < RENDER_RADIUS
 
         records = {}
-        lidar = self.calibration[LIDAR_CHANNEL]
-        lidar_to_global = ego_to_global @ make_transform(lidar.rotation, lidar.translation)
-        scan = scan_lidar(self._parts_at(center, yaw, near), lidar_to_global, self.lidar_rng,
-                          ground_reflectivity=plan.street.ground_reflectivity)
-        points_global = apply_transform(lidar_to_global, scan.points[:, :3])
-        lidar_points = np.zeros(len(center), dtype=np.int64)
-        lidar_points[near] = count_points_in_boxes(points_global, center[near], plan.agents.size[near],
-                                                   yaw_to_quat(yaw[near]))
+        scan = self._scan(t, center, yaw, near, self.lidar_rng)
         records[LIDAR_CHANNEL] = self._sample_data(LIDAR_CHANNEL, sample_token, timestamp, ego_to_global,
                                                    calibration_tokens, (0, 0), scan.points)
+        rotation = yaw_to_quat(yaw)
+        lidar_points = np.zeros(len(center), dtype=np.int64)
+        lidar_points[near] = self._num_lidar_pts(scan.points, records[LIDAR_CHANNEL][1], center[near],
+                                                 plan.agents.size[near], rotation[near])
 
         visible = np.zeros(len(center))
         covered = np.zeros(len(center))
@@ -530,9 +570,58 @@ class _SceneSensing:
                                                  render.image if self.config.sensors == "all" else None)
         with np.errstate(invalid="ignore", divide="ignore"):
             visibility = np.where(covered > 0, visible / covered, np.nan)
-        frame = _Frame(distance < ANNOTATION_RADIUS, center, yaw, plan.agents.attributes(speed),
+        frame = _Frame(distance < ANNOTATION_RADIUS, center, yaw, rotation, plan.agents.attributes(speed),
                        lidar_points, visibility)
         return frame, records
+
+    def sense_sweep(self, k: int, j: int, sample_token: str, calibration_tokens: dict) -> tuple[dict, dict]:
+        """LiDAR sweep ``j`` (1..9) after keyframe ``k - 1``: writes its file under sweeps/;
+        returns its sample_data and ego_pose records."""
+        offset_us = _sweep_offset_us(k, j)
+        t = offset_us / 1e6
+        center, yaw, _ = self.plan.agents.pose(self.plan.route, t)
+        ego_to_global = self._ego_to_global(t)
+        near = np.hypot(*(center[:, :2] - ego_to_global[:2, 3]).T) < RENDER_RADIUS
+        scan = self._scan(t, center, yaw, near, self.sweep_rng)
+        return self._sample_data(LIDAR_CHANNEL, sample_token, self.start_us + offset_us, ego_to_global,
+                                 calibration_tokens, (0, 0), scan.points, sweep=j)
+
+    def _scan(self, t: float, center: np.ndarray, yaw: np.ndarray, near: np.ndarray, rng: np.random.Generator):
+        """One LiDAR sweep whose last column fires at ``t``: each column from the ego pose of
+        its own time, moving objects where they are then (their velocity over the sweep)."""
+        seconds = lidar_column_seconds(AZIMUTH_STEPS)
+        earlier, _, _ = self.plan.agents.pose(self.plan.route, t + seconds[0])
+        velocity = (center - earlier) / -seconds[0]
+        parts = self._parts_at(center, yaw, near)
+        part_velocity = np.where((parts.owner >= 0)[:, None], velocity[np.maximum(parts.owner, 0)], 0.0)
+        column_poses = self._ego_poses(t, seconds) @ self.lidar_to_ego
+        return scan_lidar(parts, self._ego_to_global(t) @ self.lidar_to_ego, rng,
+                          ground_reflectivity=self.plan.street.ground_reflectivity, azimuth_steps=AZIMUTH_STEPS,
+                          start_azimuth=self.start_azimuth, column_poses=column_poses, column_seconds=seconds,
+                          part_velocity=part_velocity)
+
+    def _ego_poses(self, t: float, seconds: np.ndarray) -> np.ndarray:
+        """(C,4,4) ego to global at times ``t + seconds`` (seconds in [-0.05, 0]): position and
+        yaw interpolated linearly between the poses at the first and the last column."""
+        xy0, yaw0 = self.plan.ego.pose(self.plan.route, t + seconds[0])
+        xy1, yaw1 = self.plan.ego.pose(self.plan.route, t)
+        fraction = (seconds - seconds[0]) / (seconds[-1] - seconds[0])
+        yaw = yaw0 + fraction * np.angle(np.exp(1j * (yaw1 - yaw0)))
+        xy = xy0 + fraction[:, None] * (np.asarray(xy1) - xy0)
+        cos, sin = np.cos(yaw), np.sin(yaw)
+        poses = np.zeros((len(seconds), 4, 4))
+        poses[:, 0, 0], poses[:, 0, 1], poses[:, 1, 0], poses[:, 1, 1] = cos, -sin, sin, cos
+        poses[:, 2, 2] = poses[:, 3, 3] = 1.0
+        poses[:, :2, 3] = xy
+        return poses
+
+    def _num_lidar_pts(self, points: np.ndarray, ego_pose: dict, center: np.ndarray, size: np.ndarray,
+                       rotation: np.ndarray) -> np.ndarray:
+        """Points of the key-frame sweep in each box, counted from the records as the devkit does."""
+        lidar = self.calibration[LIDAR_CHANNEL]
+        corners = boxes_in_sensor_frame(center, size, rotation, ego_pose["translation"], ego_pose["rotation"],
+                                        lidar.translation, lidar.rotation)
+        return count_points_in_boxes(points[:, :3], corners)
 
     def _ego_to_global(self, t: float) -> np.ndarray:
         xy, yaw = self.plan.ego.pose(self.plan.route, t)
@@ -558,7 +647,7 @@ class _SceneSensing:
         return concat_parts([posed, self.scenery])
 
     def _render(self, channel: str, parts: Parts, ego_to_global: np.ndarray, image_size):
-        calibration = self.calibration[channel]
+        calibration = self.true_calibration[channel]
         cam_to_global = ego_to_global @ make_transform(calibration.rotation, calibration.translation)
         scale = self.config.image_scale if self.config.sensors == "all" else VISIBILITY_SCALE
         width, height = round(FULL_IMAGE_SIZE[0] * scale), round(FULL_IMAGE_SIZE[1] * scale)
@@ -567,12 +656,17 @@ class _SceneSensing:
                              self.styles[channel], self.sun, len(self.appearances), self.camera_rng,
                              shade=self.config.sensors == "all")
 
-    def _sample_data(self, channel, sample_token, timestamp, ego_to_global, calibration_tokens, image_size, data):
-        """sample_data and ego_pose records of one sensor reading; writes its file."""
-        token = make_token("sample_data", sample_token, channel)
+    def _sample_data(self, channel, sample_token, timestamp, ego_to_global, calibration_tokens, image_size, data,
+                     sweep: int = 0):
+        """sample_data and ego_pose records of one sensor reading; writes its file.
+
+        sweep: 0 for a key frame (under samples/), j > 0 for sweep j after the previous key frame
+        (under sweeps/; sample_token is then the following key frame's sample, as in nuScenes)."""
+        token = make_token("sample_data", sample_token, channel, *(("sweep", sweep) if sweep else ()))
         lidar = channel == LIDAR_CHANNEL
         extension = "pcd.bin" if lidar else "jpg"
-        filename = f"samples/{channel}/{self.logfile}__{channel}__{timestamp}.{extension}"
+        folder = "sweeps" if sweep else "samples"
+        filename = f"{folder}/{channel}/{self.logfile}__{channel}__{timestamp}.{extension}"
         if data is not None and self.config.sensors == "all":
             (write_pcd_bin if lidar else write_jpeg)(self.staging / filename, data)
         ego_pose = {
@@ -588,7 +682,7 @@ class _SceneSensing:
             "calibrated_sensor_token": calibration_tokens[channel],
             "timestamp": timestamp,
             "fileformat": "pcd" if lidar else "jpg",
-            "is_key_frame": True,
+            "is_key_frame": not sweep,
             "height": 0 if lidar else image_size[1],
             "width": 0 if lidar else image_size[0],
             "filename": filename,
@@ -599,10 +693,11 @@ class _SceneSensing:
 
 
 def _owned(parts: Parts, owner: int, center=None, yaw: float = 0.0) -> Parts:
-    """Parts of one object tagged with its owner; scenery is posed once here."""
+    """Parts of one object tagged with its owner; scenery is posed once here, ``center`` being
+    its box centre (x, y, half its height: it stands on the ground)."""
     if center is None:
         return dataclasses.replace(parts, owner=np.full(len(parts.owner), owner, dtype=np.int32))
-    return place_parts(parts, np.array([center[0], center[1], 0.0]), yaw, owner)
+    return place_parts(parts, np.asarray(center, dtype=np.float64), yaw, owner)
 
 
 def _shape_size(size_wlh: np.ndarray) -> np.ndarray:
@@ -649,7 +744,7 @@ def _annotation_records(plan: ScenePlan, frames: list[_Frame], sample_tokens: li
                 "attribute_tokens": [attribute_token(attribute)] if attribute else [],
                 "translation": [float(v) for v in frame.center[owner]],
                 "size": [float(v) for v in agents.size[owner]],
-                "rotation": [float(v) for v in yaw_to_quat(np.array(frame.yaw[owner]))],
+                "rotation": [float(v) for v in frame.rotation[owner]],
                 "prev": tokens[j - 1] if j > 0 else "",
                 "next": tokens[j + 1] if j + 1 < len(tokens) else "",
                 "num_lidar_pts": int(frame.lidar_points[owner]),

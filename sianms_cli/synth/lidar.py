@@ -2,17 +2,27 @@
 
 One sweep fires 32 beams per azimuth column; columns advance clockwise seen from above,
 as the sensor spins. Points are stored column by column in firing order (azimuth major,
-beams by ascending elevation minor), as in nuScenes .pcd.bin files.
+beams by ascending elevation minor), as in nuScenes .pcd.bin files, and every column is
+complete: a ray that brings no return (sky, dropout) is stored as a point at the sensor's
+origin with intensity 0. nuScenes files hold whole columns (their size is always a
+multiple of 32 points; issue:nutonomy/nuscenes-devkit#117) and store invalid measurements
+at a radius below 0.1 mm (issue:nutonomy/nuscenes-devkit#845), which is why the devkit's
+multi-sweep loader drops points within 1 m of the sensor; hence ~34.7k points per sweep.
+
+Candidate (ray, part) pairs come from a raster cull: each part's angular bounding box, as
+seen from the sensor, selects the block of columns x beams that can reach it, so a sweep
+costs in proportion to the parts' angular size rather than rays x parts.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
 from sianms_cli.synth import shapes
-from sianms_cli.synth.raycast import intersect_ground, intersect_parts
+from sianms_cli.synth.raycast import T_MIN, intersect_ground, slab_interval
 from sianms_cli.synth.shapes import Parts
 
 # HDL-32E manual: 32 lasers from -30.67 to +10.67 degrees, evenly spaced (~1.33 degrees).
@@ -41,25 +51,30 @@ MATERIAL_REFLECTIVITY = np.array([
 ], np.float64)
 assert len(MATERIAL_REFLECTIVITY) == len(shapes.MATERIALS)
 
+_MAX_PAIRS = 200_000  # (ray, part) pairs tested at once: bounds memory to tens of MB
+
 
 @dataclass(frozen=True)
 class LidarScan:
     """One sweep.
 
-    points (N,5) float32 in the LIDAR frame: x, y, z (metres), intensity (0..255, integer
-    valued), ring index (0..31, index into HDL32E_ELEVATIONS_DEG); owner (N,) int32 object
-    index of the surface hit, -1 for the ground and scenery.
+    points (N,5) float32 in the LIDAR frame, one per ray in firing order (N = columns x 32):
+    x, y, z (metres), intensity (0..255, integer valued), ring index (0..31, index into
+    HDL32E_ELEVATIONS_DEG); owner (N,) int32 object index of the surface hit, -1 for the
+    ground and scenery and for no return; returned (N,) bool, False for a ray that brought
+    no return (stored as x = y = z = intensity = 0).
     """
 
     points: np.ndarray
     owner: np.ndarray
+    returned: np.ndarray
 
 
 def beam_directions(azimuth_steps: int, start_azimuth: float) -> tuple[np.ndarray, np.ndarray]:
     """Unit ray directions in the LIDAR frame, (azimuth_steps * 32, 3), firing order, and the
     ring index of each ray (R,). Column k points at azimuth start - 2 pi k / steps (radians
     from the LIDAR x axis, counter-clockwise positive; the sensor spins clockwise)."""
-    az = start_azimuth - 2.0 * np.pi * np.arange(azimuth_steps) / azimuth_steps
+    az = column_azimuths(azimuth_steps, start_azimuth)
     el = np.radians(HDL32E_ELEVATIONS_DEG)
     ca, sa = np.cos(az)[:, None], np.sin(az)[:, None]
     ce, se = np.cos(el)[None, :], np.sin(el)[None, :]
@@ -68,55 +83,231 @@ def beam_directions(azimuth_steps: int, start_azimuth: float) -> tuple[np.ndarra
     return dirs.reshape(-1, 3), ring.reshape(-1)
 
 
-def _tile_order(columns: int, beams: int, tile_columns: int = 4, tile_beams: int = 8) -> np.ndarray:
-    """Permutation of the firing-order rays grouping them in tiles of tile_columns x
-    tile_beams neighbouring rays (tile by tile, firing order within a tile)."""
-    k, b = np.meshgrid(np.arange(columns), np.arange(beams), indexing="ij")
-    key = (k // tile_columns) * -(-beams // tile_beams) + b // tile_beams
-    return np.lexsort((b.ravel(), k.ravel(), key.ravel()))
+def column_azimuths(azimuth_steps: int, start_azimuth: float) -> np.ndarray:
+    """Azimuth of each column in the LIDAR frame (radians), firing order: clockwise."""
+    return start_azimuth - 2.0 * np.pi * np.arange(azimuth_steps) / azimuth_steps
 
 
-def _keep_probability(cos_incidence, reflectivity, rng_m, max_range, dropout):
+def _level_frame(lidar_to_world: np.ndarray) -> np.ndarray:
+    """(3,3) rotation of the level frame at the sensor: z up, x along the LIDAR x axis's heading.
+
+    Parts are yaw-only cuboids, so their angular extent is simple to bound in this frame."""
+    yaw = np.arctan2(lidar_to_world[1, 0], lidar_to_world[0, 0])
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _direction_margins(dirs: np.ndarray, level: np.ndarray, start_azimuth: float, azimuth_steps: int):
+    """Largest azimuth and elevation differences (radians) between the rays (R,3) global,
+    firing order, seen in the level frame and their nominal column azimuth and beam
+    elevation: the sensor's tilt and its turn during the sweep. The cull widens by these."""
+    d = dirs @ level
+    beams = len(HDL32E_ELEVATIONS_DEG)
+    az = np.arctan2(d[:, 1], d[:, 0]) - np.repeat(column_azimuths(azimuth_steps, start_azimuth), beams)
+    el = np.arcsin(np.clip(d[:, 2], -1.0, 1.0)) - np.tile(np.radians(HDL32E_ELEVATIONS_DEG), azimuth_steps)
+    return float(np.abs(np.angle(np.exp(1j * az))).max()) + 1e-6, float(np.abs(el).max()) + 1e-6
+
+
+def _angular_bounds(parts: Parts, origin: np.ndarray, level: np.ndarray, inflate: np.ndarray):
+    """Azimuth interval (centre, half width) and elevation interval (low, high) of each part,
+    seen from ``origin`` in the level frame, radians; each part's box grown by ``inflate`` (M,)
+    metres on every side. A part whose grown footprint holds the origin spans every azimuth."""
+    rel = parts.center - origin
+    cx, cy = rel @ level[:, 0], rel @ level[:, 1]
+    yaw = parts.yaw - np.arctan2(level[1, 0], level[0, 0])
+    half = parts.half_size + inflate[:, None]
+    c, s = np.cos(yaw), np.sin(yaw)
+    # Corners of the footprint in the level frame, (M, 4).
+    sx, sy = np.array([1.0, 1.0, -1.0, -1.0]), np.array([1.0, -1.0, -1.0, 1.0])
+    lx, ly = sx[None, :] * half[:, :1], sy[None, :] * half[:, 1:2]
+    x = cx[:, None] + c[:, None] * lx - s[:, None] * ly
+    y = cy[:, None] + s[:, None] * lx + c[:, None] * ly
+    az_center = np.arctan2(cy, cx)
+    offset = np.angle(np.exp(1j * (np.arctan2(y, x) - az_center[:, None])))
+    lo, hi = offset.min(axis=1), offset.max(axis=1)
+    # Horizontal distance from the origin to the footprint (0 inside) and to its farthest corner.
+    ox, oy = c * cx + s * cy, -s * cx + c * cy  # the footprint's centre in its own frame, negated
+    near = np.hypot(np.maximum(np.abs(ox) - half[:, 0], 0.0), np.maximum(np.abs(oy) - half[:, 1], 0.0))
+    far = np.hypot(x, y).max(axis=1)
+    inside = near <= 0.0
+    az_mid = np.where(inside, 0.0, az_center + (lo + hi) / 2)
+    az_half = np.where(inside, np.pi, (hi - lo) / 2)
+    z_lo = rel @ level[:, 2] - half[:, 2]
+    z_hi = rel @ level[:, 2] + half[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        el_lo = np.arctan2(z_lo, np.where(z_lo < 0, near, far))
+        el_hi = np.arctan2(z_hi, np.where(z_hi > 0, near, far))
+    return az_mid, az_half, el_lo, el_hi
+
+
+def candidate_pairs(parts: Parts, origin: np.ndarray, level: np.ndarray, inflate: np.ndarray,
+                    start_azimuth: float, azimuth_steps: int, az_margin: float,
+                    el_margin: float) -> tuple[np.ndarray, np.ndarray]:
+    """(ray, part) pairs of one sweep whose ray may hit the part, rays in firing order.
+
+    Each part's angular bounding box (see :func:`_angular_bounds`), widened by the margins
+    (radians, see :func:`_direction_margins`), selects a block of columns x
+    beams: a raster cull, so the cost follows the parts' angular size, not rays x parts.
+    """
+    beams = len(HDL32E_ELEVATIONS_DEG)
+    az_mid, az_half, el_lo, el_hi = _angular_bounds(parts, origin, level, inflate)
+    step = 2.0 * np.pi / azimuth_steps
+    # Column k looks at start - k * step: the interval [mid - half, mid + half] holds k from k_lo.
+    k_lo = np.ceil((start_azimuth - az_mid - az_half - az_margin) / step)
+    k_hi = np.floor((start_azimuth - az_mid + az_half + az_margin) / step)
+    n_col = np.clip(k_hi - k_lo + 1, 0, azimuth_steps).astype(np.int64)
+    el = np.radians(HDL32E_ELEVATIONS_DEG)
+    b_lo = np.searchsorted(el, el_lo - el_margin, side="left")
+    n_beam = np.maximum(np.searchsorted(el, el_hi + el_margin, side="right") - b_lo, 0)
+    count = n_col * n_beam
+    part = np.repeat(np.arange(len(parts)), count)
+    within = np.arange(len(part)) - np.repeat(np.cumsum(count) - count, count)
+    column = (k_lo.astype(np.int64)[part] + within // n_beam[part]) % azimuth_steps
+    ray = column * beams + b_lo[part] + within % n_beam[part]
+    return ray, part
+
+
+def _nearest_hits(ray, part, origins, dirs, parts: Parts, t_max, shift):
+    """Nearest part hit per ray over candidate (ray, part) pairs, in bounded slices.
+
+    origins (R,3) relative to the sweep's reference origin and parts' centres likewise (so
+    float32 keeps sub-millimetre precision within the LiDAR's range); shift(ray, part) ->
+    (K,3) or None moves each ray's origin by minus the part's displacement (parts that move
+    while the sensor sweeps). Returns t (R,) float64 (inf = none), part (R,) (-1 = none)
+    and the unit outward normal (R,3) of the face hit, global frame; the face is found for
+    the winning pairs only (the slab entered last, as raycast.intersect_boxes does).
+    """
+    f32 = np.float32
+    r = len(dirs)
+    t_best = np.full(r, np.inf, f32)
+    part_best = np.full(r, -1, np.int64)
+    c, s = np.cos(parts.yaw), np.sin(parts.yaw)
+    half = parts.half_size.astype(f32)
+    for start in range(0, len(ray), _MAX_PAIRS):
+        rr, pp = ray[start:start + _MAX_PAIRS], part[start:start + _MAX_PAIRS]
+        t = _pair_entry(rr, pp, origins, dirs, parts.center, half, c, s, shift, t_max)
+        hit = np.isfinite(t)
+        rr, pp, t = rr[hit], pp[hit], t[hit]
+        t_new = t_best.copy()
+        np.minimum.at(t_new, rr, t)
+        win = (t == t_new[rr]) & (t < t_best[rr])
+        part_best[rr[win]] = pp[win]  # of equally near parts of one ray the last one wins
+        t_best = t_new
+    rays = np.flatnonzero(part_best >= 0)
+    normal = np.zeros((r, 3))
+    normal[rays] = _face_normal(rays, part_best[rays], origins, dirs, parts.center, half, c, s, shift)
+    return t_best.astype(np.float64), part_best, normal
+
+
+def _local_rays(rr, pp, origins, dirs, center, c, s, shift):
+    """Origins and directions of rays rr in the frames of parts pp (float32 per axis)."""
+    o = origins[rr] - center[pp] if shift is None else origins[rr] - center[pp] - shift(rr, pp)
+    d = dirs[rr]
+    cp, sp = c[pp], s[pp]
+    f32 = np.float32
+    local_o = ((cp * o[:, 0] + sp * o[:, 1]).astype(f32), (cp * o[:, 1] - sp * o[:, 0]).astype(f32),
+               o[:, 2].astype(f32))
+    local_d = ((cp * d[:, 0] + sp * d[:, 1]).astype(f32), (cp * d[:, 1] - sp * d[:, 0]).astype(f32),
+               d[:, 2].astype(f32))
+    return local_o, local_d
+
+
+def _pair_slabs(rr, pp, origins, dirs, center, half, c, s, shift):
+    """raycast.slab_interval of rays rr against parts pp, and the rays' local directions."""
+    o, d = _local_rays(rr, pp, origins, dirs, center, c, s, shift)
+    h = [half[pp, k] for k in range(3)]
+    return slab_interval([-h_k - o_k for h_k, o_k in zip(h, o)], [h_k - o_k for h_k, o_k in zip(h, o)], d), d
+
+
+def _pair_entry(rr, pp, origins, dirs, center, half, c, s, shift, t_max):
+    """Ray parameter where each ray enters its paired part (float32, inf for a miss)."""
+    (t_near, t_far, _), _ = _pair_slabs(rr, pp, origins, dirs, center, half, c, s, shift)
+    ok = (t_near <= t_far) & (t_near > np.float32(T_MIN)) & (t_near < t_max[rr])
+    return np.where(ok, t_near, np.float32(np.inf))
+
+
+def _face_normal(rr, pp, origins, dirs, center, half, c, s, shift):
+    """Global unit outward normal of the face each ray enters its part through."""
+    (_, _, t_lo), d = _pair_slabs(rr, pp, origins, dirs, center, half, c, s, shift)
+    axis = np.argmax(np.stack(t_lo, axis=1), axis=1)
+    sign = np.where(np.take_along_axis(np.stack(d, axis=1), axis[:, None], 1)[:, 0] > 0, -1.0, 1.0)
+    n_local = np.zeros((len(rr), 3))
+    n_local[np.arange(len(rr)), axis] = sign
+    cp, sp = c[pp], s[pp]
+    return np.column_stack([cp * n_local[:, 0] - sp * n_local[:, 1], sp * n_local[:, 0] + cp * n_local[:, 1],
+                            n_local[:, 2]])
+
+
+# Car windows (the sides of a glazed cabin; its roof is metal) reflect the beam away or let
+# it through: they bring no return except near normal incidence (issue:nutonomy/nuscenes-devkit#845:
+# no return "when hitting very reflective surfaces such as car windows"; the 10 degree cone is
+# our choice).
+GLASS_MATERIALS = np.array([shapes.GREENHOUSE])
+GLASS_RETURN_COS = np.cos(np.radians(10.0))
+
+
+def _keep_probability(cos_incidence, reflectivity, rng_m, max_range, dropout, glass):
     """Probability that a return is reported: a base dropout, more at grazing incidence,
-    at long range and for weak (dark, oblique, distant) returns."""
+    at long range and for weak (dark, oblique, distant) returns; glass (bool) returns only
+    near normal incidence."""
     grazing = np.clip((0.2 - cos_incidence) / 0.2, 0.0, 1.0) * 0.9
     far = 0.3 * (rng_m / max_range) ** 2
     signal = reflectivity * cos_incidence / np.maximum(rng_m / 10.0, 1.0) ** 2
     # Weak returns fade out at the HDL-32E's usable range (70-100 m, nuScenes sensor page):
     # a tyre (0.03) seen head-on near 87 m, paint (0.1) at 70 degrees incidence near 92 m.
     weak = np.clip((0.0004 - signal) / 0.0004, 0.0, 1.0)
-    return (1.0 - dropout) * (1.0 - grazing) * (1.0 - far) * (1.0 - weak)
+    specular = glass & (cos_incidence < GLASS_RETURN_COS)
+    return (1.0 - dropout) * (1.0 - grazing) * (1.0 - far) * (1.0 - weak) * ~specular
 
 
 def scan_lidar(parts: Parts, lidar_to_world, rng: np.random.Generator, ground_reflectivity,
                azimuth_steps: int = 1084, max_range: float = 100.0, range_noise_std: float = 0.02,
-               dropout: float = 0.05, min_range: float = 0.05,
-               start_azimuth: float | None = None) -> LidarScan:
+               dropout: float = 0.05, min_range: float = 0.05, start_azimuth: float | None = None,
+               column_poses: np.ndarray | None = None, column_seconds: np.ndarray | None = None,
+               part_velocity: np.ndarray | None = None) -> LidarScan:
     """Cast one HDL-32E sweep against the ground plane z = 0 and all parts.
 
-    parts: global frame; lidar_to_world (4,4) LIDAR sensor to global; rng: the only source
-    of randomness (start azimuth when not given, range noise, dropouts, intensity noise);
-    ground_reflectivity(xy (P,2) global metres) -> (P,) reflectivity in [0, 1] (lane
-    markings high); azimuth_steps columns per revolution; returns beyond max_range or
-    closer than min_range (metres) are lost; range_noise_std metres of Gaussian noise along
-    the ray; dropout: base probability of a lost return (more are lost at grazing
-    incidence, at long range and for weak returns). Intensity = 255 * reflectivity *
-    cos(incidence), with 5 % multiplicative noise, rounded.
+    parts: global frame, posed at the sweep's reference time; lidar_to_world (4,4) LIDAR
+    sensor to global at that time: points are expressed in this frame (motion-compensated,
+    as nuScenes sweeps are). column_poses (C,4,4): the sensor pose when each column fires
+    (default: lidar_to_world, a still sensor); column_seconds (C,) each column's firing time
+    minus the reference time and part_velocity (M,3) global m/s: moving parts are where
+    they are when the column fires (linear motion), so they smear as on a real sweep.
+    rng: the only source of randomness (start azimuth when not given, range noise,
+    dropouts, intensity noise); ground_reflectivity(xy (P,2) global metres) -> (P,)
+    reflectivity in [0, 1] (lane markings high); azimuth_steps columns per revolution;
+    returns beyond max_range or closer than min_range (metres) are lost; range_noise_std
+    metres of Gaussian noise along the ray; dropout: base probability of a lost return
+    (more are lost at grazing incidence, at long range and for weak returns). Intensity =
+    255 * reflectivity * cos(incidence), with 5 % multiplicative noise, rounded.
     """
-    lidar_to_world = np.asarray(lidar_to_world, np.float64)
-    rotation, origin = lidar_to_world[:3, :3], lidar_to_world[:3, 3]
+    reference = np.asarray(lidar_to_world, np.float64)
     if start_azimuth is None:
         start_azimuth = float(rng.uniform(-np.pi, np.pi))
+    poses = np.broadcast_to(reference, (azimuth_steps, 4, 4)) if column_poses is None else column_poses
+    beams = len(HDL32E_ELEVATIONS_DEG)
     dirs_lidar, ring = beam_directions(azimuth_steps, start_azimuth)
-    dirs = dirs_lidar @ rotation.T
+    dirs = np.einsum("cij,cbj->cbi", poses[:, :3, :3], dirs_lidar.reshape(azimuth_steps, beams, 3)).reshape(-1, 3)
+    origins = np.repeat(poses[:, :3, 3] - reference[:3, 3], beams, axis=0)  # relative to the reference origin
+    t_ground = intersect_ground(origins + reference[:3, 3], dirs, t_max=max_range)
 
-    t_ground = intersect_ground(origin, dirs, t_max=max_range)
-    # Cast in compact tiles of 4 columns x 8 beams so that each bundle's cone is narrow,
-    # and stop every ray at the ground: far parts behind the ground are never tested.
-    tiles = _tile_order(azimuth_steps, len(HDL32E_ELEVATIONS_DEG))
-    t_part, part, normal = (np.empty(len(dirs)), np.empty(len(dirs), np.int64), np.empty((len(dirs), 3)))
-    t_part[tiles], part[tiles], normal[tiles], _ = intersect_parts(
-        origin, dirs[tiles], parts, t_max=np.minimum(t_ground[tiles], max_range), bundle=32)
+    level = _level_frame(reference)
+    spread = np.linalg.norm(origins, axis=1).max()
+    inflate = np.full(len(parts), spread + 1e-3)
+    shift = None
+    if part_velocity is not None and len(parts):
+        inflate += np.linalg.norm(part_velocity, axis=1) * np.abs(column_seconds).max()
+        ray_seconds = np.repeat(column_seconds, beams)
+        shift = lambda rr, pp: part_velocity[pp] * ray_seconds[rr, None]  # noqa: E731
+    az_margin, el_margin = _direction_margins(dirs, level, start_azimuth, azimuth_steps)
+    ray, part = candidate_pairs(parts, reference[:3, 3], level, inflate, start_azimuth, azimuth_steps,
+                                az_margin, el_margin)
+    t_max = np.minimum(t_ground, max_range)
+    center = parts.center - reference[:3, 3]
+    reach = np.linalg.norm(center, axis=1) - parts.bounding_radius() - inflate
+    keep = reach[part] <= t_max[ray]  # parts beyond the ray's ground hit are never tested
+    t_part, part_hit, normal = _nearest_hits(ray[keep], part[keep], origins, dirs,
+                                             dataclasses.replace(parts, center=center), t_max.astype(np.float32), shift)
     on_part = t_part < t_ground
     t = np.where(on_part, t_part, t_ground)
     hit = np.isfinite(t) & (t >= min_range)
@@ -124,24 +315,31 @@ def scan_lidar(parts: Parts, lidar_to_world, rng: np.random.Generator, ground_re
     idx = np.nonzero(hit)[0]
     on_part = on_part[idx]
     t = t[idx]
-    part_hit = np.where(on_part, part[idx], 0)
+    part_hit = np.where(on_part, part_hit[idx], 0)
     normals = np.where(on_part[:, None], normal[idx], np.array([0.0, 0.0, 1.0]))
     cos_inc = np.abs(np.einsum("ij,ij->i", normals, dirs[idx]))
     reflect = np.empty(len(idx))
     reflect[on_part] = MATERIAL_REFLECTIVITY[parts.material[part_hit[on_part]]] if on_part.any() else 0.0
     ground = ~on_part
     if ground.any():
-        xy = origin[:2] + t[ground, None] * dirs[idx[ground], :2]
+        xy = reference[:2, 3] + origins[idx[ground], :2] + t[ground, None] * dirs[idx[ground], :2]
         reflect[ground] = np.clip(ground_reflectivity(xy), 0.0, 1.0)
 
-    keep = rng.uniform(size=len(idx)) < _keep_probability(cos_inc, reflect, t, max_range, dropout)
+    glass = np.zeros(len(idx), bool)
+    side = np.abs(normals[on_part, 2]) < 0.5
+    glass[on_part] = np.isin(parts.material[part_hit[on_part]], GLASS_MATERIALS) & side
+    keep = rng.uniform(size=len(idx)) < _keep_probability(cos_inc, reflect, t, max_range, dropout, glass)
     noisy = t + rng.normal(0.0, range_noise_std, len(idx))
     gain = np.exp(rng.normal(0.0, 0.05, len(idx)))
     keep &= noisy >= min_range
 
     idx, t_noisy = idx[keep], noisy[keep]
-    intensity = np.clip(np.round(255.0 * reflect[keep] * cos_inc[keep] * gain[keep]), 0, 255)
-    xyz = dirs_lidar[idx] * t_noisy[:, None]
-    points = np.column_stack([xyz, intensity, ring[idx]]).astype(np.float32)
-    owner = np.where(on_part[keep], parts.owner[part_hit[keep]] if len(parts) else -1, -1)
-    return LidarScan(points=points, owner=owner.astype(np.int32))
+    points = np.zeros((len(dirs), 5), np.float32)
+    points[:, 4] = ring
+    points[idx, 3] = np.clip(np.round(255.0 * reflect[keep] * cos_inc[keep] * gain[keep]), 0, 255)
+    points[idx, :3] = (origins[idx] + t_noisy[:, None] * dirs[idx]) @ reference[:3, :3]
+    owner = np.full(len(dirs), -1, np.int32)
+    owner[idx] = np.where(on_part[keep], parts.owner[part_hit[keep]] if len(parts) else -1, -1)
+    returned = np.zeros(len(dirs), bool)
+    returned[idx] = True
+    return LidarScan(points=points, owner=owner, returned=returned)

@@ -10,9 +10,12 @@ each camera as its beam crosses the camera's field of view.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+
+from sianms_cli.geometry.quaternion import quat_multiply, quat_to_matrix
 
 
 FULL_IMAGE_SIZE = (1600, 900)
@@ -99,4 +102,62 @@ def normalised_rig(rig: tuple[SensorCalibration, ...]) -> tuple[SensorCalibratio
             c.principal,
         )
         for c in rig
+    )
+
+
+# The HDL-32E spins at 20 Hz (nuScenes data page): a sweep lasts 50 ms. A sweep's timestamp is
+# the time of its last column: the cameras of a key frame are triggered 43 to 0 ms before it
+# as the beam crosses them (CAMERA_TRIGGER_OFFSET_US), so the key frame's sweep holds them all.
+LIDAR_HZ = 20.0
+
+
+def lidar_column_seconds(azimuth_steps: int) -> np.ndarray:
+    """Firing time of each column minus the sweep's timestamp (seconds, <= 0), firing order."""
+    return (np.arange(azimuth_steps) + 1 - azimuth_steps) / (azimuth_steps * LIDAR_HZ)
+
+
+def lidar_start_azimuth(lidar: SensorCalibration, front_camera: SensorCalibration, azimuth_steps: int) -> float:
+    """Azimuth (LIDAR frame, radians) of a sweep's first column.
+
+    The beam points along CAM_FRONT's optical axis at the camera's trigger time and turns
+    clockwise at 2 pi per sweep; the first column fires one sweep (minus a column) before
+    the sweep's timestamp.
+    """
+    axis_ego = quat_to_matrix(np.asarray(front_camera.rotation))[:, 2]
+    camera_azimuth_ego = np.arctan2(axis_ego[1], axis_ego[0])
+    first_column = lidar_column_seconds(azimuth_steps)[0]
+    trigger = CAMERA_TRIGGER_OFFSET_US[front_camera.channel] / 1e6
+    azimuth_ego = camera_azimuth_ego + 2.0 * np.pi * (trigger - first_column) * LIDAR_HZ
+    direction = quat_to_matrix(np.asarray(lidar.rotation)).T @ np.array([np.cos(azimuth_ego), np.sin(azimuth_ego), 0.0])
+    return float(np.arctan2(direction[1], direction[0]))
+
+
+# A calibration is an estimate: the true extrinsics differ from the calibrated_sensor record by a
+# residual. Target-based camera and LiDAR extrinsic calibration is typically good to a few tenths
+# of a degree and one or two centimetres (our reading of the calibration literature; nuScenes
+# publishes no residual): we draw each axis from a normal of these standard deviations,
+# truncated at three of them.
+CALIBRATION_RESIDUAL_DEG = 0.1
+CALIBRATION_RESIDUAL_M = 0.007
+RESIDUAL_TRUNCATION = 3.0
+
+
+def true_calibration(calibration: SensorCalibration, rng: np.random.Generator) -> SensorCalibration:
+    """The sensor's true extrinsics: the record's, moved by a random residual.
+
+    The residual rotation (a rotation vector in the sensor frame, each component
+    N(0, CALIBRATION_RESIDUAL_DEG) truncated) is applied after the record's rotation;
+    the translation moves by N(0, CALIBRATION_RESIDUAL_M) per axis, truncated likewise.
+    Intrinsics are unchanged.
+    """
+    bound = RESIDUAL_TRUNCATION
+    angles = np.radians(CALIBRATION_RESIDUAL_DEG) * np.clip(rng.standard_normal(3), -bound, bound)
+    offset = CALIBRATION_RESIDUAL_M * np.clip(rng.standard_normal(3), -bound, bound)
+    angle = np.linalg.norm(angles)
+    residual = np.concatenate([[np.cos(angle / 2)], np.sinc(angle / (2 * np.pi)) / 2 * angles])
+    rotation = quat_multiply(np.asarray(calibration.rotation, np.float64), residual)
+    return dataclasses.replace(
+        calibration,
+        translation=tuple(float(v) for v in np.asarray(calibration.translation) + offset),
+        rotation=tuple(float(v) for v in rotation / np.linalg.norm(rotation)),
     )

@@ -1,5 +1,6 @@
 """The street the ego drives: a route of straight and curved segments, its cross-section,
-the crossing streets of intersections, and the ground's look and LiDAR reflectivity.
+the crossing streets of intersections (straight-through crossings and the junctions where
+the route itself turns), car parks beside it, and the ground's look and LiDAR reflectivity.
 
 Route coordinates: ``s`` is the arc length along the route centreline (metres) and ``d``
 the signed lateral offset, positive to the left of the direction of travel. The ground is
@@ -9,6 +10,7 @@ the plane z = 0 of the global frame.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -19,6 +21,12 @@ PAVEMENT_WIDTH = 4.5
 CROSSING_HALF_WIDTH = 7.0
 ZEBRA_DEPTH = 4.0
 STOP_LINE_GAP = 1.0
+BAY_WIDTH = 2.6  # metres between car-park bay lines, square to the lines
+BAY_DEPTH = 5.0
+CAR_PARK_BORDER = 0.6
+"""Metres of verge between the pavement and a car park's asphalt: room for the hedges and
+fences that stand at the back of the pavement."""
+BAY_START = CAR_PARK_BORDER + 0.5  # where the bays begin, from the pavement's outer edge
 
 SURFACE_TINT = np.array([[1.0, 1.0, 1.04], [1.0, 0.98, 0.94], [0.55, 1.0, 0.35], [1.0, 0.92, 0.82]])
 """Colour tint of asphalt, pavement, grass and plaza, multiplied by a per-point grey level."""
@@ -80,8 +88,10 @@ class Route:
     def length(self) -> float:
         return float(np.sum(self.lengths))
 
+    @cached_property
     def _segment_starts(self) -> tuple[np.ndarray, np.ndarray]:
-        """Start point (S,2) and start heading (S,) of every segment."""
+        """Start point (S,2) and start heading (S,) of every segment (computed once: every
+        pose needs them, and planning and sensing ask for ~10^4 poses a scene)."""
         headings = self.heading0 + np.concatenate(
             [[0.0], np.cumsum(self.lengths * self.curvatures)[:-1]]
         )
@@ -92,13 +102,19 @@ class Route:
             point = point + _advance(length, curvature, heading)
         return points, headings
 
+    def curvature_at(self, s: np.ndarray) -> np.ndarray:
+        """Curvature (N,) 1/m of the centreline at arc lengths ``s`` (the end segments extend)."""
+        s = np.atleast_1d(np.asarray(s, dtype=float))
+        index = np.clip(np.searchsorted(self.starts, s, side="right") - 1, 0, len(self.lengths) - 1)
+        return self.curvatures[index]
+
     def pose(self, s: np.ndarray, d: np.ndarray | float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """Global xy (N,2) and heading (N,) of the points at arc length ``s`` and offset ``d``.
 
         ``s`` outside [0, length] extends the first or last segment.
         """
         s = np.atleast_1d(np.asarray(s, dtype=float))
-        points, headings = self._segment_starts()
+        points, headings = self._segment_starts
         index = np.clip(np.searchsorted(self.starts, s, side="right") - 1, 0, len(self.lengths) - 1)
         u = s - self.starts[index]
         curvature = self.curvatures[index]
@@ -111,7 +127,7 @@ class Route:
     def to_route_frame(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Arc length ``s`` (P,) and offset ``d`` (P,) of the nearest centreline point of each xy (P,2)."""
         xy = np.asarray(xy, dtype=float)
-        points, headings = self._segment_starts()
+        points, headings = self._segment_starts
         best_s = np.zeros(len(xy))
         best_d = np.full(len(xy), np.inf)
         best_cost = np.full(len(xy), np.inf)
@@ -162,11 +178,51 @@ def _segment_coordinates(
 
 @dataclass(frozen=True)
 class Intersection:
-    """A straight crossing street through the route point at arc length ``s``."""
+    """A straight crossing street through the route point at arc length ``s``.
+
+    Where the route goes straight across, the crossing street has both arms. Where the route
+    turns at a junction, ``s`` is the middle of the turn, ``center`` the corner where the
+    incoming and outgoing centrelines meet, and the crossing street has only the arms
+    that are not the route: a T junction is one crossing street along the outgoing road with
+    the arm behind it; a 4-way junction adds a second one along the incoming road with the
+    arm beyond it. ``half_span`` is the half length of route that the junction occupies.
+    """
 
     s: float
     center: np.ndarray  # (2,) global xy
     heading: float  # direction of the crossing street, radians
+    arms: tuple[int, ...] = (-1, 1)  # +1: the arm along ``heading``, -1: the arm behind it
+    half_span: float = CROSSING_HALF_WIDTH
+
+    @property
+    def through(self) -> bool:
+        """The route goes straight across: zebras and stop lines on both sides of it."""
+        return len(self.arms) == 2
+
+    def along_limits(self) -> tuple[float, float]:
+        """Range of the along-street coordinate that the crossing street covers: 150 m each
+        way on an arm, up to the junction's far edge where there is no arm."""
+        return (-150.0 if -1 in self.arms else -CROSSING_HALF_WIDTH,
+                150.0 if 1 in self.arms else CROSSING_HALF_WIDTH)
+
+
+@dataclass(frozen=True)
+class CarPark:
+    """Open parking beside the road, behind the pavement: route arc lengths [s0, s1] on
+    ``side`` (+1 left, -1 right), ``depth`` metres deep from the pavement's outer edge (the
+    first ``CAR_PARK_BORDER`` of it verge, then asphalt), one
+    row of bays at ``angle`` to the direction of increasing ``s`` (pi/2: perpendicular)."""
+
+    side: int
+    s0: float
+    s1: float
+    depth: float
+    angle: float
+
+    @property
+    def bay_spacing(self) -> float:
+        """Distance along the road between neighbouring bays."""
+        return BAY_WIDTH / np.sin(self.angle)
 
 
 @dataclass(frozen=True)
@@ -177,6 +233,7 @@ class Street:
     section: CrossSection
     intersections: tuple[Intersection, ...]
     center_line_yellow: bool
+    car_parks: tuple[CarPark, ...] = ()
 
     def crossing_coordinates(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Along (P,K) and across (P,K) coordinates of points in each crossing street's frame."""
@@ -191,12 +248,22 @@ class Street:
         return along, across
 
     def near_intersection(self, s: np.ndarray, margin: float) -> np.ndarray:
-        """Whether route arc lengths ``s`` lie within the crossing street plus ``margin``."""
+        """Whether route arc lengths ``s`` lie within a junction (the crossing street, or the
+        whole turn where the route turns) plus ``margin``."""
         s = np.asarray(s, dtype=float)
         near = np.zeros(s.shape, dtype=bool)
         for intersection in self.intersections:
-            near |= np.abs(s - intersection.s) < CROSSING_HALF_WIDTH + margin
+            near |= np.abs(s - intersection.s) < intersection.half_span + margin
         return near
+
+    def in_car_park(self, s: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """Whether route coordinates (P,) lie on a car park's surface."""
+        inside = np.zeros(np.shape(s), dtype=bool)
+        outer = self.section.pavement_outer
+        for park in self.car_parks:
+            across = park.side * d - outer
+            inside |= (s > park.s0) & (s < park.s1) & (across > CAR_PARK_BORDER) & (across < park.depth)
+        return inside
 
     def surface(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Surface class (P,) int8, paint mask (P,) bool and yellow-paint mask (P,) bool of
@@ -206,16 +273,19 @@ class Street:
         along, across = self.crossing_coordinates(xy)
         kerb = self.section.kerb
         abs_d = np.abs(d)
-        on_crossing = (np.abs(across) < CROSSING_HALF_WIDTH) & (along > -150.0) & (along < 150.0)
-        crossing_pavement = (np.abs(across) < CROSSING_HALF_WIDTH + PAVEMENT_WIDTH) & (np.abs(along) > kerb)
+        limits = np.array([i.along_limits() for i in self.intersections]).reshape(-1, 2)
+        on_arms = (along > limits[:, 0]) & (along < limits[:, 1])
+        on_crossing = (np.abs(across) < CROSSING_HALF_WIDTH) & on_arms
+        crossing_pavement = (np.abs(across) < CROSSING_HALF_WIDTH + PAVEMENT_WIDTH) & (np.abs(along) > kerb) & on_arms
         in_junction = on_crossing & (np.abs(along) < kerb)
         klass = np.full(len(xy), 2, dtype=np.int8)
         klass[(abs_d < self.section.pavement_outer) | crossing_pavement.any(axis=1)] = 1
-        klass[(abs_d < kerb) | on_crossing.any(axis=1)] = 0
+        klass[(abs_d < kerb) | on_crossing.any(axis=1) | self.in_car_park(s, d)] = 0
 
         on_route_road = ~in_junction.any(axis=1) & (abs_d < kerb)
         center_line = self._center_line(s, d) & on_route_road
         markings = center_line | (self._lane_markings(s, d) & on_route_road) | self._zebras(s, d)
+        markings |= self._bay_lines(s, d)
         markings |= (on_crossing & (np.abs(along) > kerb) & _dashes(along, 3.0, 6.0) & (np.abs(across) < 0.08)).any(axis=1)
         yellow = center_line if self.center_line_yellow else np.zeros_like(center_line)
         return klass, markings, yellow
@@ -235,7 +305,7 @@ class Street:
         bike_line = np.abs(abs_d - section.bike_lane_inner) < 0.08
         parking_line = (np.abs(abs_d - section.parking_inner) < 0.06) & section.parking
         stop_lines = np.zeros(s.shape, dtype=bool)
-        for intersection in self.intersections:
+        for intersection in (i for i in self.intersections if i.through):
             for sign in (-1.0, 1.0):
                 edge = intersection.s + sign * (CROSSING_HALF_WIDTH + ZEBRA_DEPTH + STOP_LINE_GAP)
                 lane_side = np.sign(d) == sign * section.drive_side
@@ -244,11 +314,22 @@ class Street:
 
     def _zebras(self, s: np.ndarray, d: np.ndarray) -> np.ndarray:
         zebra = np.zeros(s.shape, dtype=bool)
-        for intersection in self.intersections:
+        for intersection in (i for i in self.intersections if i.through):
             offset = np.abs(s - intersection.s) - CROSSING_HALF_WIDTH
             band = (offset > 0.5) & (offset < 0.5 + ZEBRA_DEPTH - 1.0)
             zebra |= band & (np.abs(d) < self.section.kerb) & (_wrap(d, 1.0) < 0.5)
         return zebra
+
+    def _bay_lines(self, s: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """White lines between the car parks' bays, slanted at the bays' angle."""
+        lines = np.zeros(s.shape, dtype=bool)
+        outer = self.section.pavement_outer
+        for park in self.car_parks:
+            across = park.side * d - outer
+            slanted = s - park.s0 - across / np.tan(park.angle)
+            lines |= ((s > park.s0) & (s < park.s1) & (across > BAY_START) & (across < BAY_START + BAY_DEPTH)
+                      & (_wrap(slanted, park.bay_spacing) < 0.12))
+        return lines
 
     def ground_albedo(self, xy: np.ndarray) -> np.ndarray:
         """Linear RGB albedo (P,3) in [0, 1] of ground points (P,2): asphalt, pavement, verge, paint.

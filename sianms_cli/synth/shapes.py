@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sianms_cli.synth.appearance import BACKPACK, TWO_TONE_ROOF, Appearance
+from sianms_cli.synth.appearance import BACKPACK, CLUTTER_KINDS, TWO_TONE_ROOF, Appearance
 
 MATERIALS = (
     "paint",        # owner's body colour; carries the owner's pattern (stripe, decal, lower body)
@@ -62,7 +62,7 @@ MATERIAL_ALBEDO = np.array([
 ], dtype=np.float32)
 
 KINDS = ("car", "truck", "bus", "pedestrian", "bicycle", "motorcycle", "barrier",
-         "traffic_cone", "building")
+         "traffic_cone", "building") + CLUTTER_KINDS
 
 
 @dataclass(frozen=True)
@@ -378,6 +378,115 @@ def _building(b: _Builder, w: float, l: float, h: float, app: Appearance) -> Non
     b.add((-l / 2, -w / 2, h / 2 - 0.4), (l / 2, w / 2, h / 2), CONCRETE, app.secondary)
 
 
+# --- Street clutter: unannotated scenery (see clutter.py for where it stands) -----------------
+# Foliage and bark reuse CLOTH (matte, no pattern) with the appearance's colours baked in.
+
+CROWN_BASE = 2.6
+"""Height (m) of a street tree's lowest branches: pruned above pedestrians (and the
+2.4 m of the tallest annotated walkers' boxes)."""
+OVERHEAD_CLEARANCE = 4.8
+"""Height (m) above which a clutter part may reach over the carriageway (crowns, lamp
+arms, cross-arms): above the tallest vehicle box (mean + 2 std truck height, 4.5 m) and
+within the 4.3-5.0 m vertical clearance that road design guides ask for."""
+CROWN_KERB_SIDE = 0.5
+"""How far (m) a tree's crown below `OVERHEAD_CLEARANCE` reaches from the trunk towards
+the road: crowns are lifted over the carriageway, as arborists prune street trees."""
+STREET_LIGHT_POLE_INSET = 0.13
+"""Distance (m) from a street light's +y box face to its pole's axis (base plinth half
+width). The pole stands at y = w/2 - inset and its arm reaches towards -y, over the road;
+every other clutter kind stands at its box centre."""
+
+
+def _tree(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+    """Trunk at the box centre; crown in three tiers, the lowest lifted on the -y (road) side."""
+    z0 = -h / 2
+    trunk = float(np.clip(0.03 * w, 0.1, 0.18))
+    lift = z0 + OVERHEAD_CLEARANCE + 0.1
+    b.add_center((0.0, 0.0, z0 + (lift - z0) / 2), (trunk, trunk, (lift - z0) / 2), CLOTH, app.secondary)
+    b.add((-0.4 * l, -CROWN_KERB_SIDE, z0 + CROWN_BASE), (0.4 * l, 0.4 * w, lift), CLOTH, app.base)
+    b.add((-l / 2, -w / 2, lift), (l / 2, w / 2, h / 2 - 0.3 * (h / 2 - lift)), CLOTH, app.base)
+    b.add((-0.3 * l, -0.3 * w, h / 2 - 0.3 * (h / 2 - lift)), (0.3 * l, 0.3 * w, h / 2), CLOTH,
+          app.base * np.float32(0.8))
+
+
+def _hedge(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+    b.add((-l / 2, -w / 2, -h / 2), (l / 2, w / 2, h / 2 - 0.15), CLOTH, app.base)
+    b.add((-l / 2 + 0.1, -w / 2 + 0.08, h / 2 - 0.15), (l / 2 - 0.1, w / 2 - 0.08, h / 2), CLOTH,
+          app.base * np.float32(1.15))
+
+
+def _fence(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+    """One panel: a post at each end, two rails and bars about every 0.4 m."""
+    z0 = -h / 2
+    post = 0.05
+    for x in (-l / 2 + post, l / 2 - post):
+        b.add_center((x, 0.0, 0.0), (post, w / 2, h / 2), METAL, app.base)
+    for z in (z0 + 0.12, h / 2 - 0.06):
+        b.add_center((0.0, 0.0, z), (l / 2 - 2 * post, 0.015, 0.02), METAL, app.base)
+    bars = max(1, int(round((l - 4 * post) / 0.4)))
+    for x in (np.arange(bars) + 0.5) / bars * (l - 4 * post) - (l / 2 - 2 * post):
+        b.add_center((x, 0.0, 0.0), (0.012, 0.012, h / 2 - 0.02), METAL, app.base)
+
+
+def _street_light(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+    """Pole at the +y end, an arm at the top towards -y (the road), a luminaire at its end."""
+    z0, r = -h / 2, STREET_LIGHT_POLE_INSET - 0.04
+    pole_y = w / 2 - STREET_LIGHT_POLE_INSET
+    b.add_center((0.0, pole_y, 0.0), (r, r, h / 2), METAL, app.base)
+    b.add((-0.04, -w / 2 + 0.3, h / 2 - 0.3), (0.04, pole_y, h / 2 - 0.2), METAL, app.base)
+    b.add((-l / 2, -w / 2, h / 2 - 0.35), (l / 2, -w / 2 + 0.6, h / 2 - 0.15), TRIM)
+    b.add((-l / 2 + 0.04, -w / 2 + 0.04, h / 2 - 0.38), (l / 2 - 0.04, -w / 2 + 0.56, h / 2 - 0.35),
+          HEADLIGHT)
+    b.add_center((0.0, pole_y, z0 + 0.4), (r + 0.04, r + 0.04, 0.4), METAL, app.base)
+
+
+def _utility_pole(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+    """A wooden or concrete pole with a cross-arm along y at the top."""
+    r = 0.5 * l
+    b.add_center((0.0, 0.0, 0.0), (r, r, h / 2), CONCRETE, app.base)
+    b.add((-0.05, -w / 2, h / 2 - 0.9), (0.05, w / 2, h / 2 - 0.78), TRIM)
+
+
+def _sign(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+    """A post with a retro-reflective plate facing +x, its bottom 2.1 m up."""
+    z0 = -h / 2
+    b.add_center((0.0, 0.0, 0.0), (0.03, 0.03, h / 2), METAL)
+    b.add((0.03, -w / 2, z0 + 2.1), (l / 2, w / 2, h / 2), REFLECTOR, app.base)
+    b.add((-l / 2, -w / 2 + 0.02, z0 + 2.12), (-0.03, w / 2 - 0.02, h / 2 - 0.02), METAL)
+
+
+def _traffic_light(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+    """A pedestal signal: a pole at the box centre carrying a head facing +x at its top,
+    the head's bottom 2.5 m up (signal housings clear the pavement by at least 2.4 m)."""
+    head_lo = h / 2 - 1.0
+    b.add((-0.07, -0.07, -h / 2), (0.07, 0.07, head_lo + 0.1), METAL, app.base)
+    b.add((-0.12, -w / 2 + 0.03, head_lo), (0.12, w / 2 - 0.03, h / 2), TRIM)
+    for k, colour in enumerate(((0.02, 0.45, 0.12), (0.55, 0.30, 0.02), (0.60, 0.03, 0.02))):
+        b.add_center((0.13, 0.0, head_lo + 0.17 + 0.33 * k), (0.01, 0.1, 0.1), TAILLIGHT, colour)
+    b.add((-l / 2, -w / 2, head_lo + 0.05), (-0.12, w / 2, h / 2 - 0.05), TRIM)
+    b.add((0.14, -w / 2 + 0.03, h / 2 - 0.04), (l / 2, w / 2 - 0.03, h / 2), TRIM)
+
+
+def _hydrant(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+    z0 = -h / 2
+    b.add((-l / 2, -l / 2, z0), (l / 2, l / 2, z0 + 0.08), PAINT, app.base)
+    b.add((-0.35 * l, -0.35 * l, z0 + 0.08), (0.35 * l, 0.35 * l, h / 2 - 0.12), PAINT, app.base)
+    b.add((-0.25 * l, -0.25 * l, h / 2 - 0.12), (0.25 * l, 0.25 * l, h / 2), PAINT2, app.secondary)
+    b.add_center((0.0, 0.0, z0 + 0.55 * h), (0.06, w / 2, 0.06), PAINT2, app.secondary)
+
+
+def _bin(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+    b.add((-l / 2 + 0.03, -w / 2 + 0.03, -h / 2), (l / 2 - 0.03, w / 2 - 0.03, h / 2 - 0.08), PAINT,
+          app.base)
+    b.add((-l / 2, -w / 2, h / 2 - 0.08), (l / 2, w / 2, h / 2), TRIM)
+
+
+def _bollard(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+    b.add((-l / 2, -w / 2, -h / 2), (l / 2, w / 2, h / 2 - 0.2), METAL, app.base)
+    b.add((-l / 2, -w / 2, h / 2 - 0.2), (l / 2, w / 2, h / 2 - 0.12), REFLECTOR)
+    b.add((-0.8 * l / 2, -0.8 * w / 2, h / 2 - 0.12), (0.8 * l / 2, 0.8 * w / 2, h / 2), METAL, app.base)
+
+
 _BUILDERS = {
     "car": _car,
     "truck": _truck,
@@ -388,6 +497,16 @@ _BUILDERS = {
     "barrier": _barrier,
     "traffic_cone": _cone,
     "building": _building,
+    "tree": _tree,
+    "hedge": _hedge,
+    "fence": _fence,
+    "street_light": _street_light,
+    "utility_pole": _utility_pole,
+    "sign": _sign,
+    "traffic_light": _traffic_light,
+    "hydrant": _hydrant,
+    "bin": _bin,
+    "bollard": _bollard,
 }
 
 

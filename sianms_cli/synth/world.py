@@ -1,10 +1,12 @@
 """Traffic of one synthetic scene: the ego's drive and every other road user, as paths.
 
 An agent moves along a *path*: the route with a lateral offset (lanes, bike lanes,
-pavements, parking lanes) or a straight line (a crossing street). Its position on the
-path at time ``t`` is ``clip(p0 + direction * (v t + a t^2 / 2), p_min, p_max)``, so speed
-and heading are consistent between keyframes by construction, and agents that share a
-lane share its speed, which keeps them from driving into one another.
+pavements, parking lanes, car-park bays) or a straight line (a crossing street). Its position
+on the path at time ``t`` is ``clip(p0 + direction * (v t + a t^2 / 2), p_min, p_max)``, and
+a lane change or parking manoeuvre moves the offset by a smoothstep (``manoeuvres.py``), so
+speed and heading are consistent between keyframes by construction, and agents that share a
+lane share its speed, which keeps them from driving into one another. About a quarter of
+the routes turn at a T or 4-way junction (``TURN_SHARE``), where the ego turns too.
 
 Class mix and density target the nuScenes trainval statistics collected in
 ``shared/reference/nuscenes.md`` §9 (objects per keyframe: cars 14.4, pedestrians 6.4,
@@ -16,10 +18,12 @@ prints what a generated dataset actually holds.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from sianms_cli.synth.manoeuvres import EGO_LANE_CHANGE_SHARE, plan_manoeuvres
+from sianms_cli.synth.parking import bay_poses, choose_car_parks
 from sianms_cli.synth.road import (
     LANE_WIDTH,
     PARKING_WIDTH,
@@ -34,6 +38,17 @@ SCENE_SECONDS = 20.0
 KEYFRAME_HZ = 2.0
 ANNOTATION_RADIUS = 80.0  # metres from the ego: nuScenes car annotations reach ~80 m
 ROUTE_MARGIN = 160.0  # route length before and after the ego's drive
+TURN_SHARE = 0.25
+"""Scenes whose ego turns at a junction: 73.9 % of nuScenes driving scenarios are simple
+go-straight ones (reference §9.5-1, Li et al. arXiv 2312.03031); lane changes and the
+scenes that stand still make up the rest."""
+TURN_RADIUS = (12.0, 20.0)  # metres, centreline radius of a turn at a town junction
+TURN_ROAD_SPEED = 8.0  # m/s: the fastest traffic on a street with a turn
+ROADWORKS_SHARE = 0.33
+"""Streets with a parking lane that have roadworks: 0.75 x 0.33 = 25 % of the scenes, ~20 % once
+those without room between junctions drop out. nuScenes over-samples construction sites
+(reference §9.6-4), yet most keyframes hold no barrier: the sites are few and long (60-130 m,
+cone tapers at both ends), so barriers and cones per keyframe stay near trainval's 4.5 and 2.9."""
 
 # (w, l, h) mean and std per category, nuScenes trainval (reference §9.3).
 SIZE_STATS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
@@ -63,6 +78,8 @@ SHAPE_KIND = {
 }
 
 MOVING_SPEED = 0.2  # m/s: below this a road user counts as standing still
+DEPARTURE_STOP = 120.0  # metres from a junction where cars leaving along a crossing street stop
+WALKER_QUEUE_SPACING = 1.2  # metres between walkers waiting at a junction (2-sigma body length + gap)
 
 
 @dataclass
@@ -81,13 +98,14 @@ class AgentList:
     yaw_offset: list
     parked: list
     rider: list
+    shift: list  # (lateral change d metres, start s, duration s) of a lane change, d = 0 for none
 
     @classmethod
     def empty(cls) -> "AgentList":
-        return cls(*([] for _ in range(12)))
+        return cls(*([] for _ in range(13)))
 
     def add(self, category, size, *, p0, offset=0.0, line=None, speed=0.0, accel=0.0, direction=1,
-            p_range=(-np.inf, np.inf), yaw_offset=0.0, parked=False, rider=False) -> None:
+            p_range=(-np.inf, np.inf), yaw_offset=0.0, parked=False, rider=False, shift=(0.0, 0.0, 1.0)) -> None:
         self.category.append(category)
         self.size.append(np.asarray(size, dtype=float))
         self.path_line.append(line)
@@ -100,6 +118,7 @@ class AgentList:
         self.yaw_offset.append(yaw_offset)
         self.parked.append(parked)
         self.rider.append(rider)
+        self.shift.append(shift)
 
 
 @dataclass(frozen=True)
@@ -119,6 +138,7 @@ class Agents:
     yaw_offset: np.ndarray
     parked: np.ndarray  # (N,) bool
     rider: np.ndarray  # (N,) bool: cycles carrying a rider
+    shift: np.ndarray  # (N,3) lane change: lateral change d (m, 0 for none), start time, duration (s)
 
     @classmethod
     def from_list(cls, agents: AgentList) -> "Agents":
@@ -138,6 +158,7 @@ class Agents:
             yaw_offset=np.array(agents.yaw_offset, dtype=float),
             parked=np.array(agents.parked, dtype=bool),
             rider=np.array(agents.rider, dtype=bool),
+            shift=np.array(agents.shift, dtype=float).reshape(n, 3),
         )
 
     def __len__(self) -> int:
@@ -152,13 +173,22 @@ class Agents:
         return clipped, speed
 
     def pose(self, route: Route, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Box centres (N,3) global, yaw (N,) and ground speed (N,) m/s at time ``t``."""
+        """Box centres (N,3) global, yaw (N,) and ground speed (N,) m/s at time ``t``.
+
+        On a curve, a path at offset ``d`` is a circle of radius ``1/k - d``, so the speed
+        along it is the speed along the centreline times ``|1 - k d|``. During a lane change
+        the offset also moves sideways, and the yaw turns towards the direction of travel.
+        """
         p, speed = self.path_position(t)
-        xy_route, heading_route = route.pose(p, self.offset)
+        d, d_rate = lateral_offset(self.offset, self.shift, t)
+        xy_route, heading_route = route.pose(p, d)
+        along = speed * np.abs(1.0 - route.curvature_at(p) * d)
+        steer = self.direction * np.arctan2(d_rate, along)
+        speed = np.where(self.on_line, speed, np.hypot(along, d_rate))
         heading_line = self.line[:, 2]
         xy_line = self.line[:, :2] + p[:, None] * np.stack([np.cos(heading_line), np.sin(heading_line)], axis=1)
         xy = np.where(self.on_line[:, None], xy_line, xy_route)
-        heading = np.where(self.on_line, heading_line, heading_route)
+        heading = np.where(self.on_line, heading_line, heading_route + steer)
         yaw = heading + np.where(self.direction < 0, np.pi, 0.0) + self.yaw_offset
         yaw = np.mod(yaw + np.pi, 2 * np.pi) - np.pi
         center = np.column_stack([xy, self.size[:, 2] / 2])
@@ -191,20 +221,42 @@ class Building:
 
 @dataclass(frozen=True)
 class EgoDrive:
-    """The ego vehicle's motion along its lane: s(t) = s0 + v t + a t^2 / 2."""
+    """The ego vehicle's motion along its lane: s(t) = s0 + v t + a t^2 / 2, and a lane
+    change ``shift`` = (lateral change d, start, duration) as for :class:`Agents`."""
 
     s0: float
     speed: float
     accel: float
     offset: float
+    shift: tuple[float, float, float] = (0.0, 0.0, 1.0)
 
     def s(self, t: float | np.ndarray) -> np.ndarray:
         return self.s0 + self.speed * np.asarray(t) + 0.5 * self.accel * np.asarray(t) ** 2
 
     def pose(self, route: Route, t: float) -> tuple[np.ndarray, float]:
         """Ego xy (2,) and yaw at time ``t``."""
-        xy, heading = route.pose(self.s(t), self.offset)
-        return xy[0], float(heading[0])
+        xy, yaw = self.track(route, np.array([t], dtype=float))
+        return xy[0], float(yaw[0])
+
+    def track(self, route: Route, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Ego xy (T,2) and yaw (T,) at ``times`` (T,): the yaw turns towards the direction of
+        travel while the ego changes lane."""
+        s = self.s(times)
+        shift = np.broadcast_to(np.array(self.shift, dtype=float), (len(times), 3))
+        d, d_rate = lateral_offset(np.full(len(times), self.offset), shift, times)
+        xy, heading = route.pose(s, d)
+        along = np.abs(self.speed + self.accel * times) * np.abs(1.0 - route.curvature_at(s) * d)
+        return xy, heading + np.arctan2(d_rate, along)
+
+
+def lateral_offset(offset: np.ndarray, shift: np.ndarray, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Offset d (N,) and its rate (N,) m/s at time ``t`` (scalar or (N,)) of paths at ``offset`` (N,) with lane
+    changes ``shift`` (N,3): a smoothstep from ``offset`` to ``offset + change`` over the
+    duration, so the sideways speed starts and ends at zero (a change of lane or pulling in
+    or out of a parking space takes 3-6 s)."""
+    change, start, duration = shift[:, 0], shift[:, 1], shift[:, 2]
+    u = np.clip((t - start) / duration, 0.0, 1.0)
+    return offset + change * u * u * (3.0 - 2.0 * u), change * 6.0 * u * (1.0 - u) / duration
 
 
 @dataclass(frozen=True)
@@ -231,34 +283,51 @@ def sample_size(category: str, rng: np.random.Generator) -> np.ndarray:
 
 def plan_scene(rng: np.random.Generator, drive_side: int) -> ScenePlan:
     """Lay out a street and populate it for one 20 s scene."""
-    ego_speed, ego_accel = _ego_speed_profile(rng)
+    turn = bool(rng.random() < TURN_SHARE)
+    ego_speed, ego_accel = _ego_speed_profile(rng, turn)
     travel = ego_speed * SCENE_SECONDS + 0.5 * ego_accel * SCENE_SECONDS**2
-    route = _random_route(rng, length=travel + 2 * ROUTE_MARGIN)
     section = CrossSection(
         lanes_per_direction=int(rng.choice([1, 2], p=[0.55, 0.45])),
         parking=bool(rng.random() < 0.75),
         drive_side=drive_side,
     )
-    intersections = _intersections(rng, route, start=ROUTE_MARGIN - 60.0, stop=ROUTE_MARGIN + travel + 60.0)
+    if turn:
+        route, junctions = _turning_route(rng, travel)
+        stop = junctions[0].s - junctions[0].half_span - 60.0  # no crossing street meets the junction's
+    else:
+        route, junctions = _random_route(rng, length=travel + 2 * ROUTE_MARGIN), ()
+        stop = ROUTE_MARGIN + travel + 60.0
+    intersections = junctions + _intersections(rng, route, start=ROUTE_MARGIN - 60.0, stop=stop)
     street = Street(route, section, intersections, center_line_yellow=drive_side > 0)
     ego_lane = int(rng.integers(section.lanes_per_direction))
     ego = EgoDrive(ROUTE_MARGIN, ego_speed, ego_accel, section.lane_center(ego_lane, +1))
+    street = replace(street, car_parks=choose_car_parks(rng, street, ego.s0, ego.s0 + travel))
     busyness = float(rng.uniform(0.35, 1.0))
-    roadworks = section.parking and bool(rng.random() < 0.7)
+    roadworks = section.parking and bool(rng.random() < ROADWORKS_SHARE)
 
     agents = AgentList.empty()
     blocked = _place_roadworks(agents, rng, street, ego) if roadworks else []
-    _place_lane_traffic(agents, rng, street, ego, ego_lane, busyness)
+    _place_lane_traffic(agents, rng, street, ego, ego_lane, busyness, max_speed=TURN_ROAD_SPEED if turn else 14.0)
     _place_parked_vehicles(agents, rng, street, busyness, blocked)
+    _place_car_park_cars(agents, rng, street, busyness)
     _place_cyclists(agents, rng, street, busyness)
     _place_pedestrians(agents, rng, street, busyness)
     _place_crossing_traffic(agents, rng, street, busyness)
     buildings = _place_buildings(rng, street)
-    return ScenePlan(street, ego, Agents.from_list(agents), buildings, busyness, roadworks)
+    ego_lane_change = (not turn and section.lanes_per_direction == 2 and ego_speed > 0
+                       and bool(rng.random() < EGO_LANE_CHANGE_SHARE))
+    ego, moving = plan_manoeuvres(rng, street, ego, Agents.from_list(agents), ego_lane_change, SCENE_SECONDS)
+    return ScenePlan(street, ego, moving, buildings, busyness, bool(blocked))
 
 
-def _ego_speed_profile(rng: np.random.Generator) -> tuple[float, float]:
-    """Initial speed (m/s) and constant acceleration; ~15 % of scenes wait at a standstill."""
+def _ego_speed_profile(rng: np.random.Generator, turn: bool) -> tuple[float, float]:
+    """Initial speed (m/s) and constant acceleration; ~15 % of the scenes that do not turn
+    wait at a standstill. A turning ego keeps to 2-8 m/s, the speed of a 12-20 m radius
+    turn in town (lateral acceleration at most ~3 m/s^2)."""
+    if turn:
+        speed = float(rng.uniform(3.0, 7.5))
+        final = float(np.clip(speed + rng.normal(0.0, 1.5), 2.0, 8.0))
+        return speed, (final - speed) / SCENE_SECONDS
     if rng.random() < 0.15:
         return 0.0, 0.0
     speed = float(rng.uniform(2.5, 11.0))
@@ -285,6 +354,32 @@ def _random_route(rng: np.random.Generator, length: float) -> Route:
     return Route(origin, float(rng.uniform(-np.pi, np.pi)), np.array(lengths), np.array(curvatures))
 
 
+def _turning_route(rng: np.random.Generator, travel: float) -> tuple[Route, tuple[Intersection, ...]]:
+    """A straight road, a 90-degree turn of radius 12-20 m at a junction, a straight road.
+
+    The middle of the turn falls 20-80 % of the way through the ego's drive, so the ego
+    is seen approaching, turning and leaving. The junction is a T (the crossing street runs
+    along the outgoing road, its other arm behind) or a 4-way (the incoming road also goes on
+    beyond it), half and half.
+    """
+    radius = float(rng.uniform(*TURN_RADIUS))
+    sign = float(rng.choice([-1.0, 1.0]))
+    arc = radius * np.pi / 2
+    middle = ROUTE_MARGIN + float(rng.uniform(0.2, 0.8)) * travel
+    before = middle - arc / 2
+    after = travel + 2 * ROUTE_MARGIN - before - arc
+    origin = rng.uniform([300.0, 800.0], [2000.0, 1800.0])
+    heading_in = float(rng.uniform(-np.pi, np.pi))
+    route = Route(origin, heading_in, np.array([before, arc, after]), np.array([0.0, sign / radius, 0.0]))
+    turn_start, _ = route.pose(np.array([before]))
+    corner = turn_start[0] + radius * np.array([np.cos(heading_in), np.sin(heading_in)])
+    half_span = arc / 2 + 2.0
+    junctions = [Intersection(middle, corner, heading_in + sign * np.pi / 2, arms=(-1,), half_span=half_span)]
+    if rng.random() < 0.5:
+        junctions.append(Intersection(middle, corner, heading_in, arms=(1,), half_span=half_span))
+    return route, tuple(junctions)
+
+
 def _intersections(rng: np.random.Generator, route: Route, start: float, stop: float) -> tuple[Intersection, ...]:
     """Crossing streets on straight stretches, now and then (about one every 180 m)."""
     found = []
@@ -304,7 +399,7 @@ def _intersections(rng: np.random.Generator, route: Route, start: float, stop: f
 def _vehicle_category(rng: np.random.Generator, moving: bool) -> str:
     if moving:
         return str(rng.choice(["vehicle.car", "vehicle.truck", "vehicle.bus.rigid", "vehicle.motorcycle"],
-                              p=[0.78, 0.16, 0.04, 0.02]))
+                              p=[0.73, 0.16, 0.09, 0.02]))
     return str(rng.choice(["vehicle.car", "vehicle.truck", "vehicle.motorcycle"], p=[0.81, 0.17, 0.02]))
 
 
@@ -317,9 +412,10 @@ def _fill_line(rng: np.random.Generator, start: float, stop: float, gap_mean: fl
         position += max(float(rng.exponential(gap_mean)), min_gap)
 
 
-def _place_lane_traffic(agents: AgentList, rng, street: Street, ego: EgoDrive, ego_lane: int, busyness: float) -> None:
+def _place_lane_traffic(agents: AgentList, rng, street: Street, ego: EgoDrive, ego_lane: int, busyness: float,
+                        max_speed: float) -> None:
     """Platoons in every driving lane; the ego's lane moves with the ego, 12 % of the
-    other lanes are held up (stopped traffic)."""
+    other lanes are held up (stopped traffic), none is faster than ``max_speed`` m/s."""
     section = street.section
     ego_travel = ego.speed * SCENE_SECONDS + 0.5 * ego.accel * SCENE_SECONDS**2
     for direction in (+1, -1):
@@ -328,7 +424,7 @@ def _place_lane_traffic(agents: AgentList, rng, street: Street, ego: EgoDrive, e
             if ego_lane_here:
                 speed, accel = ego.speed, ego.accel
             else:
-                speed = float(np.clip(rng.normal(6.6, 2.5), 0.0, 14.0)) if rng.random() > 0.12 else 0.0
+                speed = float(np.clip(rng.normal(6.6, 2.5), 0.0, max_speed)) if rng.random() > 0.12 else 0.0
                 accel = 0.0
             travel = speed * SCENE_SECONDS + 0.5 * accel * SCENE_SECONDS**2
             # Cover what the ego sees during its drive, upstream far enough that traffic
@@ -361,7 +457,7 @@ def _place_parked_vehicles(agents: AgentList, rng, street: Street, busyness: flo
             position += size[1] / 2
             free = not street.near_intersection(np.array([position]), margin=size[1] / 2 + 8.0)[0]
             free &= not any(lo - size[1] / 2 < position < hi + size[1] / 2 for s, lo, hi in blocked if s == side)
-            if free and rng.random() < 0.3 * busyness + 0.1:
+            if free and rng.random() < 0.2 * busyness + 0.06:
                 # Parked with the flow of their side of the road, a few the other way round.
                 with_flow = -side * section.drive_side
                 direction = with_flow if rng.random() < 0.9 else -with_flow
@@ -371,74 +467,187 @@ def _place_parked_vehicles(agents: AgentList, rng, street: Street, busyness: flo
             position += size[1] / 2 + 0.8 + float(rng.exponential(4.0))
 
 
+def _turn_spans(street: Street) -> np.ndarray:
+    """(K,2) route arc-length intervals of the junctions where the route turns: the offset
+    paths of pavements and parking lanes fold over inside such a tight turn, so nobody
+    walks, waits or parks on them there."""
+    spans = [(i.s - i.half_span - 4.0, i.s + i.half_span + 4.0) for i in street.intersections if not i.through]
+    return np.array(spans, dtype=float).reshape(-1, 2)
+
+
+def _in_spans(position: float, spans: np.ndarray, margin: float = 0.0) -> bool:
+    return bool(np.any((position > spans[:, 0] - margin) & (position < spans[:, 1] + margin)))
+
+
+def _walk_range(position: float, direction: int, spans: np.ndarray) -> tuple[float, float]:
+    """Path range (p_min, p_max) of a walker that stops at the edge of the first turning
+    junction ahead of it (waiting to cross) instead of walking into it."""
+    ahead = spans[:, 0] - position if direction > 0 else position - spans[:, 1]
+    if not np.any(ahead > 0):
+        return (-np.inf, np.inf)
+    k = int(np.argmin(np.where(ahead > 0, ahead, np.inf)))
+    return (-np.inf, float(spans[k, 0])) if direction > 0 else (float(spans[k, 1]), np.inf)
+
+
+def _place_car_park_cars(agents: AgentList, rng, street: Street, busyness: float) -> None:
+    """Cars in the car parks' bays, 25-65 % of the bays taken, a quarter reversed in. A car
+    fits its bay: width up to 2.25 m (bays 2.6 m apart), length up to 5.2 m."""
+    for park in street.car_parks:
+        for s, d, yaw in zip(*bay_poses(park, street.section.pavement_outer)):
+            size = sample_size("vehicle.car", rng)
+            size[0] = min(size[0], 2.25)
+            size[1] = min(size[1], 5.2)
+            taken = rng.random() < 0.25 + 0.4 * busyness
+            reversed_in = rng.random() < 0.25
+            if taken:
+                agents.add("vehicle.car", size, p0=float(s), offset=float(d),
+                           yaw_offset=float(yaw + (np.pi if reversed_in else 0.0) + rng.normal(0.0, 0.03)),
+                           parked=True)
+
+
 def _place_cyclists(agents: AgentList, rng, street: Street, busyness: float) -> None:
+    """Riders in the bike lanes (they ride round turns: the bike lane's radius stays positive),
+    parked bicycles at the kerb away from junctions where the route turns."""
     section = street.section
+    spans = _turn_spans(street)
     for direction in (+1, -1):
         side = -section.drive_side * direction
         offset = side * (section.bike_lane_inner + 0.75)
         speed = float(np.clip(rng.normal(4.0, 1.0), 2.0, 7.0))
-        for position in _fill_line(rng, 0.0, street.route.length, 2500.0 / busyness, float(rng.uniform(0, 800))):
-            category = "vehicle.bicycle" if rng.random() < 0.8 else "vehicle.motorcycle"
+        for position in _fill_line(rng, 0.0, street.route.length, 3500.0 / busyness, float(rng.uniform(0, 1800))):
+            category = "vehicle.bicycle" if rng.random() < 0.9 else "vehicle.motorcycle"
             size = sample_size(category, rng)
             size[2] = max(size[2], 1.55)  # the box includes the rider
             agents.add(category, size, p0=position, offset=offset, speed=speed, direction=direction, rider=True)
     # Parked bicycles at the kerb, across the pavement edge.
     for side in (+1, -1):
-        for position in _fill_line(rng, 0.0, street.route.length, 3500.0, float(rng.uniform(0, 1200))):
+        for position in _fill_line(rng, 0.0, street.route.length, 7000.0, float(rng.uniform(0, 2400))):
             size = sample_size("vehicle.bicycle", rng)
             size[2] = min(size[2], 1.15)
-            agents.add("vehicle.bicycle", size, p0=position, offset=side * (section.kerb + 0.35),
-                       yaw_offset=float(rng.choice([0.0, np.pi]) + rng.normal(0, 0.05)), parked=True)
+            if not _in_spans(position, spans, margin=1.0):
+                agents.add("vehicle.bicycle", size, p0=position, offset=side * (section.kerb + 0.35),
+                           yaw_offset=float(rng.choice([0.0, np.pi]) + rng.normal(0, 0.05)), parked=True)
 
 
 def _place_pedestrians(agents: AgentList, rng, street: Street, busyness: float) -> None:
     """Walkers on three walking lines per pavement (1 m apart, each with its own direction
-    and pace), and people standing by the building fronts."""
+    and pace), and people standing by the building fronts. Walkers heading for a junction
+    where the route turns wait at its edge, one behind the other."""
     section = street.section
     length = street.route.length
+    spans = _turn_spans(street)
     for side in (+1, -1):
         for k, inset in enumerate((1.35, 2.35, 3.35)):
             direction = 1 if (k + (side > 0)) % 2 == 0 else -1
             speed = float(np.clip(rng.normal(1.35, 0.15), 0.9, 1.8))
             offset = side * (section.kerb + inset)
-            for position in _fill_line(rng, 0.0, length, 140.0 / busyness, float(rng.uniform(0, 100))):
+            waiting: dict[float, int] = {}  # junction edge -> walkers already queued there
+            positions = list(_fill_line(rng, 0.0, length, 125.0 / busyness, float(rng.uniform(0, 100))))
+            for position in (positions if direction < 0 else positions[::-1]):  # front of the queue first
                 category = "human.pedestrian.child" if rng.random() < 0.03 else "human.pedestrian.adult"
-                agents.add(category, sample_size(category, rng), p0=position, offset=offset,
-                           speed=speed, direction=direction)
+                size = sample_size(category, rng)
+                if _in_spans(position, spans, margin=1.0):
+                    continue
+                lo, hi = _walk_range(position, direction, spans)
+                edge = hi if direction > 0 else lo
+                queued = waiting.get(edge, 0)
+                waiting[edge] = queued + 1
+                shift = queued * WALKER_QUEUE_SPACING
+                p_range = (lo, hi - shift) if direction > 0 else (lo + shift, hi)
+                agents.add(category, size, p0=position, offset=offset, speed=speed, direction=direction,
+                           p_range=p_range)
         for position in _fill_line(rng, 0.0, length, 180.0 / busyness, float(rng.uniform(0, 100))):
             category = "human.pedestrian.adult"
             offset = side * (section.kerb + PAVEMENT_WIDTH - 0.2)
-            agents.add(category, sample_size(category, rng), p0=position, offset=offset,
-                       yaw_offset=float(rng.uniform(-np.pi, np.pi)))
+            size = sample_size(category, rng)
+            if not _in_spans(position, spans, margin=1.0):
+                agents.add(category, size, p0=position, offset=offset, yaw_offset=float(rng.uniform(-np.pi, np.pi)))
 
 
 def _place_crossing_traffic(agents: AgentList, rng, street: Street, busyness: float) -> None:
-    """Queues waiting at the crossing streets' stop lines (the route has the green light)."""
-    section = street.section
+    """Traffic on every arm of the crossing streets while the route has the green light:
+    a queue at the stop line, cars arriving at its tail, and cars driving away from the
+    junction (those that crossed or turned on the previous phase)."""
     for intersection in street.intersections:
-        heading = intersection.heading
-        for arm in (+1, -1):
-            # Traffic approaching the junction on this arm drives towards it: direction -arm.
-            lane_d = -section.drive_side * (-arm) * LANE_WIDTH / 2
-            start = arm * (section.pavement_outer + 2.0)
-            origin = intersection.center + lane_d * np.array([-np.sin(heading), np.cos(heading)])
-            position = abs(start)
-            for _ in range(int(rng.poisson(2.0 * busyness))):
-                category = _vehicle_category(rng, moving=False)
-                size = sample_size(category, rng)
-                position += size[1] / 2
-                agents.add(category, size, p0=arm * position, line=(origin[0], origin[1], heading),
-                           direction=-arm)
-                position += size[1] / 2 + float(rng.uniform(1.5, 4.0))
+        for arm in intersection.arms:
+            _place_arriving_queue(agents, rng, street, intersection, arm, busyness)
+            _place_departing_lane(agents, rng, street, intersection, arm, busyness)
+
+
+def _arm_line(street: Street, intersection: Intersection, arm: int, direction: int) -> tuple[float, float, float]:
+    """Straight path (origin x, y, heading) of the lane of ``arm`` used by traffic moving in
+    ``direction`` along the crossing street (the lane on the drive side of its centreline)."""
+    heading = intersection.heading
+    lane_d = -street.section.drive_side * direction * LANE_WIDTH / 2
+    origin = intersection.center + lane_d * np.array([-np.sin(heading), np.cos(heading)])
+    return (float(origin[0]), float(origin[1]), heading)
+
+
+def _place_arriving_queue(agents: AgentList, rng, street: Street, intersection: Intersection, arm: int,
+                          busyness: float) -> None:
+    """Stopped cars at the stop line of ``arm``, then cars that drive up at one shared speed
+    and stop at the queue's tail. Each car starts at least as far behind the car ahead as
+    its slot is behind that car's slot, so with one speed no gap ever shrinks below the
+    slots' spacing."""
+    line = _arm_line(street, intersection, arm, direction=-arm)
+    slot = street.section.pavement_outer + 2.0  # distance from the junction centre
+    speed = float(np.clip(rng.normal(6.6, 2.0), 3.0, 11.0))
+    lead = 0.0  # how far the car's start is behind its slot: never decreases along the queue
+    for k in range(int(rng.poisson(1.5 * busyness)) + int(rng.poisson(1.2 * busyness))):
+        category = _vehicle_category(rng, moving=False)
+        size = sample_size(category, rng)
+        slot += size[1] / 2
+        if k > 0 and rng.random() < 0.5:
+            lead = max(lead, speed * float(rng.uniform(2.0, SCENE_SECONDS)))
+        p_range = (slot, np.inf) if arm > 0 else (-np.inf, -slot)
+        agents.add(category, size, p0=arm * (slot + lead), line=line, direction=-arm,
+                   speed=speed if lead > 0 else 0.0, p_range=p_range)
+        slot += size[1] / 2 + float(rng.uniform(1.5, 4.0))
+
+
+def _place_departing_lane(agents: AgentList, rng, street: Street, intersection: Intersection, arm: int,
+                          busyness: float) -> None:
+    """Cars driving away from the junction along ``arm`` at one shared speed. They stop
+    (clipped paths) from 120 m out backwards, front car first, before they could meet
+    anything the crossing street does not hold."""
+    line = _arm_line(street, intersection, arm, direction=arm)
+    speed = float(np.clip(rng.normal(6.6, 2.0), 3.0, 11.0))
+    position = street.section.pavement_outer + 2.0
+    cars = []
+    for _ in range(int(rng.poisson(2.0 * busyness))):
+        category = _vehicle_category(rng, moving=True)
+        size = sample_size(category, rng)
+        position += float(rng.exponential(30.0 / busyness)) + size[1] / 2
+        cars.append((category, size, position))
+        position += size[1] / 2 + 2.5
+    stop = DEPARTURE_STOP  # where the rear of the car ahead stops
+    for category, size, position in reversed(cars):
+        center = stop - size[1] / 2
+        if position < center:
+            p_range = (-np.inf, center) if arm > 0 else (-center, np.inf)
+            agents.add(category, size, p0=arm * position, line=line, direction=arm, speed=speed,
+                       p_range=p_range, rider=category == "vehicle.motorcycle")
+            stop = center - size[1] / 2 - 2.0
 
 
 def _place_roadworks(agents: AgentList, rng, street: Street, ego: EgoDrive) -> list:
-    """A closed stretch of the parking lane: barriers along its edge, a cone taper before
-    it, workers inside. Returns (side, s_min, s_max) so no car is parked there."""
+    """A closed stretch of the parking lane, 60-130 m long: barriers along its edge, a cone
+    taper at each end, workers inside. The stretch is moved and shortened (to 30 m at least)
+    to fit between junctions. Returns [(side, s_min, s_max)] so no car is parked there, or []
+    where there is no room near the ego's drive (no roadworks then)."""
     section = street.section
     side = int(rng.choice([-1, 1]))
-    start = ego.s0 + float(rng.uniform(-40.0, ego.speed * SCENE_SECONDS + 40.0))
-    length = float(rng.uniform(15.0, 35.0))
+    length = float(rng.uniform(60.0, 130.0))
+    n_cones = (int(rng.integers(10, 19)), int(rng.integers(10, 19)))
+    n_workers = int(rng.integers(0, 4))
+    before, after = 2.5 * n_cones[0] + 5.0, 2.5 * n_cones[1] + 5.0
+    start = ego.s0 + float(rng.uniform(-60.0, ego.speed * SCENE_SECONDS + 20.0))
+    lo_free, hi_free = _free_stretch(street, start)
+    length = min(length, hi_free - lo_free - before - after)
+    if length < 30.0:
+        return []
+    start = float(np.clip(start, lo_free + before, hi_free - after - length))
+    lo, hi = start - before, start + length + after
     inner = section.parking_inner
     position = start
     while position < start + length:
@@ -447,22 +656,43 @@ def _place_roadworks(agents: AgentList, rng, street: Street, ego: EgoDrive) -> l
         agents.add("movable_object.barrier", size, p0=position + size[0] / 2, offset=side * (inner + 0.35),
                    yaw_offset=np.pi / 2)
         position += size[0] + float(rng.uniform(0.05, 0.4))
-    n_cones = int(rng.integers(4, 10))
-    for k in range(n_cones):
-        size = sample_size("movable_object.trafficcone", rng)
-        across = inner + 0.35 + (PARKING_WIDTH - 0.7) * (k + 1) / n_cones
-        agents.add("movable_object.trafficcone", size, p0=start - 2.5 * (k + 1), offset=side * across)
-    n_workers = int(rng.integers(0, 3))
+    for end, count, step in ((start, n_cones[0], -2.5), (position, n_cones[1], 2.5)):
+        for k in range(count):
+            size = sample_size("movable_object.trafficcone", rng)
+            across = inner + 0.35 + (PARKING_WIDTH - 0.7) * (k + 1) / count
+            agents.add("movable_object.trafficcone", size, p0=end + step * (k + 1), offset=side * across)
     for k in range(n_workers):
         category = "human.pedestrian.construction_worker"
-        spread = start + length * (k + 1) / (n_workers + 1)  # apart, at least 5 m
+        spread = start + length * (k + 1) / (n_workers + 1)  # apart, at least 11 m
         agents.add(category, sample_size(category, rng), p0=spread + float(rng.uniform(-1.0, 1.0)),
                    offset=side * (inner + float(rng.uniform(1.1, 1.8))), yaw_offset=float(rng.uniform(-np.pi, np.pi)))
-    return [(side, start - 2.5 * n_cones - 5.0, start + length)]
+    return [(side, lo, hi)]
+
+
+def _car_park_depth(street: Street, side: int, center_s: float, frontage: float) -> float:
+    """Depth of the car parks beside a building's frontage: the building stands behind them."""
+    depths = [park.depth for park in street.car_parks
+              if park.side == side and park.s0 - 2.0 < center_s + frontage / 2 and center_s - frontage / 2 < park.s1 + 2.0]
+    return max(depths, default=0.0)
+
+
+def _free_stretch(street: Street, s: float) -> tuple[float, float]:
+    """The route interval around arc length ``s`` between the junctions (2 m clear of them)."""
+    lo, hi = 0.0, street.route.length
+    for junction in street.intersections:
+        near, far = junction.s - junction.half_span - 2.0, junction.s + junction.half_span + 2.0
+        if far <= s:
+            lo = max(lo, far)
+        elif near >= s:
+            hi = min(hi, near)
+        else:
+            return s, s  # inside the junction
+    return lo, hi
 
 
 def _place_buildings(rng: np.random.Generator, street: Street) -> tuple[Building, ...]:
-    """Blocks along both sides, set back from the pavement, none across a crossing street."""
+    """Blocks along both sides, set back from the pavement (and behind the car parks), none
+    across a crossing street."""
     buildings = []
     route = street.route
     for side in (+1, -1):
@@ -472,7 +702,7 @@ def _place_buildings(rng: np.random.Generator, street: Street) -> tuple[Building
             depth = float(rng.uniform(8.0, 16.0))
             center_s = position + frontage / 2
             if not street.near_intersection(np.array([center_s]), margin=frontage / 2 + PAVEMENT_WIDTH + 2.0)[0]:
-                setback = float(rng.uniform(0.5, 4.0))
+                setback = float(rng.uniform(0.5, 4.0)) + _car_park_depth(street, side, center_s, frontage)
                 d = side * (street.section.pavement_outer + setback + depth / 2)
                 xy, heading = route.pose(np.array([center_s]), d)
                 height = float(rng.choice([rng.uniform(4.0, 9.0), rng.uniform(9.0, 30.0)]))

@@ -27,7 +27,8 @@ def modules_loaded_by(arguments):
 
 
 @pytest.mark.parametrize("arguments", [["--help"], ["-h"], ["prepare", "--help"], ["synth", "-h"], ["metrics", "-h"],
-                                       ["info", "-h"], ["--version"]])
+                                       ["info", "-h"], ["train", "-h"], ["train", "siamese", "-h"],
+                                       ["--version"]])
 def test_help_imports_nothing_heavy(arguments):
     assert modules_loaded_by(arguments) == []
 

@@ -183,8 +183,10 @@ def test_a_tables_only_dataset_is_refused_before_anything_is_written(synthetic_d
     assert not (tmp_path / "cache").exists()
 
 
-def test_sweeps_need_lidar_sweeps_between_key_frames(config, tmp_path):
-    with_sweeps = PrepareConfig(config.dataroot, config.version, config.split, sweeps=5)
+def test_sweeps_need_lidar_sweeps_between_key_frames(synthetic_dataroot, tmp_path):
+    # Scenes of one key frame have sensor files but no sweep between key frames.
+    one_keyframe = synthetic_dataroot(scenes=3, scene_seconds=0.5)
+    with_sweeps = PrepareConfig(str(one_keyframe), "v1.0-mini", "mini_train", sweeps=5)
     with pytest.raises(SianmsError, match="--sweeps 5: .* has no LiDAR sweeps between key frames"):
         job.run(with_sweeps, tmp_path / "cache")
     assert not (tmp_path / "cache").exists()

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from sianms_cli.synth import shapes
+from sianms_cli.synth import lidar, shapes
 from sianms_cli.synth.lidar import HDL32E_ELEVATIONS_DEG, MATERIAL_REFLECTIVITY, scan_lidar
 from sianms_cli.synth.shapes import Parts, concat_parts
 
@@ -25,9 +25,34 @@ def test_elevations():
     np.testing.assert_allclose(np.diff(HDL32E_ELEVATIONS_DEG), 41.34 / 31)
 
 
+def returns(scan):
+    """The points that are returns (the others are no-return rays stored at the origin)."""
+    return lidar.LidarScan(scan.points[scan.returned], scan.owner[scan.returned], scan.returned[scan.returned])
+
+
+def test_every_ray_is_stored_and_no_return_lies_at_the_origin():
+    scan = scan_lidar(wall(), LIDAR_TO_WORLD, np.random.default_rng(0), asphalt)
+    assert len(scan.points) == 1084 * 32
+    np.testing.assert_array_equal(scan.points[:, 4], np.tile(np.arange(32), 1084))  # whole columns
+    lost = scan.points[~scan.returned]
+    assert len(lost) > 5000  # sky, dropouts
+    np.testing.assert_array_equal(lost[:, :4], 0.0)
+    assert np.all(scan.owner[~scan.returned] == -1)
+    assert np.all(np.linalg.norm(scan.points[scan.returned, :3], axis=1) > 1.0)
+
+
+def test_car_windows_return_only_near_normal_incidence():
+    # A glass pane facing the sensor, seen head-on in its middle and obliquely at its sides.
+    pane = Parts([[10.5, 0.0, 2.0]], [[0.5, 20.0, 2.0]], [0.0], [0], [shapes.GREENHOUSE])
+    scan = returns(scan_lidar(pane, LIDAR_TO_WORLD, np.random.default_rng(9), asphalt, dropout=0.0))
+    p = scan.points[scan.owner == 0]
+    cos_incidence = p[:, 0] / np.linalg.norm(p[:, :3], axis=1)
+    assert len(p) > 20 and np.all(cos_incidence > np.cos(np.radians(10.5)))
+
+
 def test_empty_ground_ring_ranges():
-    scan = scan_lidar(concat_parts([]), LIDAR_TO_WORLD, np.random.default_rng(0), asphalt,
-                      range_noise_std=0.0, dropout=0.0)
+    scan = returns(scan_lidar(concat_parts([]), LIDAR_TO_WORLD, np.random.default_rng(0), asphalt,
+                              range_noise_std=0.0, dropout=0.0))
     ring = scan.points[:, 4].astype(int)
     horizontal = np.hypot(scan.points[:, 0], scan.points[:, 1])
     expected = HEIGHT / np.tan(-np.radians(HDL32E_ELEVATIONS_DEG[ring]))
@@ -40,8 +65,8 @@ def test_empty_ground_ring_ranges():
 
 def test_empty_ground_with_noise_stays_within_noise():
     std = 0.02
-    scan = scan_lidar(concat_parts([]), LIDAR_TO_WORLD, np.random.default_rng(1), asphalt,
-                      range_noise_std=std)
+    scan = returns(scan_lidar(concat_parts([]), LIDAR_TO_WORLD, np.random.default_rng(1), asphalt,
+                              range_noise_std=std))
     ring = scan.points[:, 4].astype(int)
     el = np.radians(HDL32E_ELEVATIONS_DEG[ring])
     rng_m = np.linalg.norm(scan.points[:, :3], axis=1)
@@ -51,7 +76,7 @@ def test_empty_ground_with_noise_stays_within_noise():
 
 def test_points_on_a_wall_lie_on_its_face_with_plate_intensity():
     std = 0.02
-    scan = scan_lidar(wall(), LIDAR_TO_WORLD, np.random.default_rng(2), asphalt, range_noise_std=std)
+    scan = returns(scan_lidar(wall(), LIDAR_TO_WORLD, np.random.default_rng(2), asphalt, range_noise_std=std))
     on = scan.owner == 0
     p = scan.points[on]
     assert on.sum() > 500
@@ -71,8 +96,8 @@ def test_tyre_returns_are_weaker_than_plate_returns():
 
 
 def test_firing_order_is_column_major_clockwise():
-    scan = scan_lidar(concat_parts([]), LIDAR_TO_WORLD, np.random.default_rng(4), asphalt,
-                      range_noise_std=0.0, dropout=0.0)
+    scan = returns(scan_lidar(concat_parts([]), LIDAR_TO_WORLD, np.random.default_rng(4), asphalt,
+                              range_noise_std=0.0, dropout=0.0))
     az = np.unwrap(np.arctan2(scan.points[:, 1], scan.points[:, 0]))
     step = np.diff(az)
     assert np.all(step <= 1e-6)
@@ -89,3 +114,71 @@ def test_same_seed_same_scan():
     np.testing.assert_array_equal(a.owner, b.owner)
     assert a.points.dtype == np.float32 and a.points.shape[1] == 5 and a.owner.dtype == np.int32
     assert len(a.points) != len(c.points) or not np.array_equal(a.points, c.points)
+
+
+def boxes(rng, count):
+    """Random yaw-rotated cuboids around a sensor at the origin, some enclosing it."""
+    center = np.column_stack([rng.uniform(-30, 30, (count, 2)), rng.uniform(0.0, 4.0, count)])
+    return Parts(center, rng.uniform(0.2, 6.0, (count, 3)), rng.uniform(-np.pi, np.pi, count),
+                 np.arange(count), np.zeros(count, int))
+
+
+def moving_poses(speed, seconds):
+    """LIDAR poses (C,4,4) of a sensor driving along x and turning at 0.5 rad/s."""
+    yaw = 0.5 * seconds
+    poses = np.tile(LIDAR_TO_WORLD, (len(seconds), 1, 1))
+    poses[:, 0, 0], poses[:, 0, 1], poses[:, 1, 0], poses[:, 1, 1] = np.cos(yaw), -np.sin(yaw), np.sin(yaw), np.cos(yaw)
+    poses[:, 0, 3] = speed * seconds
+    return poses
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_raster_cull_finds_every_hit_of_testing_all_pairs(seed):
+    rng = np.random.default_rng(seed)
+    parts = boxes(rng, 40)
+    steps = 360
+    seconds = np.linspace(-0.05, 0.0, steps)
+    poses = moving_poses(12.0, seconds)
+    reference = poses[-1]
+    dirs_lidar, _ = lidar.beam_directions(steps, 0.7)
+    dirs = np.einsum("cij,cbj->cbi", poses[:, :3, :3], dirs_lidar.reshape(steps, 32, 3)).reshape(-1, 3)
+    origins = np.repeat(poses[:, :3, 3] - reference[:3, 3], 32, axis=0)
+    level = lidar._level_frame(reference)
+    inflate = np.full(len(parts), np.linalg.norm(origins, axis=1).max() + 1e-3)
+    margins = lidar._direction_margins(dirs, level, 0.7, steps)
+    ray, part = lidar.candidate_pairs(parts, reference[:3, 3], level, inflate, 0.7, steps, *margins)
+    local = Parts(parts.center - reference[:3, 3], parts.half_size, parts.yaw, parts.owner, parts.material)
+    t_max = np.full(len(dirs), np.float32(100.0))
+    culled = lidar._nearest_hits(ray, part, origins, dirs, local, t_max, None)
+    every_ray, every_part = (a.ravel() for a in np.meshgrid(np.arange(len(dirs)), np.arange(len(parts)), indexing="ij"))
+    everything = lidar._nearest_hits(every_ray, every_part, origins, dirs, local, t_max, None)
+    assert np.isfinite(everything[0]).sum() > 1000
+    for got, expected in zip(culled, everything):
+        np.testing.assert_array_equal(got, expected)
+
+
+def test_points_of_a_moving_sensor_are_motion_compensated():
+    # The sensor drives at 15 m/s and turns during the sweep; the wall's points, expressed in
+    # the sensor frame at the sweep's time (its last column), still lie on the wall's face.
+    steps = 1084
+    seconds = np.linspace(-0.05, 0.0, steps)
+    poses = moving_poses(15.0, seconds)
+    scan = scan_lidar(wall(), poses[-1], np.random.default_rng(7), asphalt, range_noise_std=0.0, dropout=0.0,
+                      start_azimuth=np.pi, column_poses=poses, column_seconds=seconds)
+    on = scan.owner == 0
+    assert on.sum() > 500
+    np.testing.assert_allclose(scan.points[on, 0], 10.0, atol=1e-4)
+    np.testing.assert_allclose(scan.points[~on & scan.returned, 2], -HEIGHT, atol=1e-4)  # the ground stays flat
+
+
+def test_a_moving_part_is_where_it_is_when_its_column_fires():
+    steps = 1084
+    seconds = np.linspace(-0.05, 0.0, steps)
+    speed = 20.0  # the wall moves away along x
+    start = 0.6
+    scan = scan_lidar(wall(), LIDAR_TO_WORLD, np.random.default_rng(8), asphalt, range_noise_std=0.0, dropout=0.0,
+                      start_azimuth=start, column_seconds=seconds, part_velocity=np.array([[speed, 0.0, 0.0]]))
+    p = scan.points[scan.owner == 0]
+    column = np.round((start - np.arctan2(p[:, 1], p[:, 0])) / (2 * np.pi / steps)).astype(int) % steps
+    np.testing.assert_allclose(p[:, 0], 10.0 + speed * seconds[column], atol=1e-4)
+    assert np.ptp(p[:, 0]) > 0.1  # the sweep smears it

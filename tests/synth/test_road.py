@@ -2,7 +2,9 @@ import numpy as np
 import pytest
 
 from sianms_cli.synth.road import (
+    BAY_WIDTH,
     LANE_WIDTH,
+    CarPark,
     CrossSection,
     Intersection,
     Route,
@@ -92,6 +94,68 @@ def test_crossing_street_is_asphalt_beyond_the_pavement():
     klass, _, _ = street.surface(far_along_crossing)
     np.testing.assert_array_equal(klass, [0, 2])
     assert street.near_intersection(np.array([195.0, 260.0]), margin=1.0).tolist() == [True, False]
+
+
+def test_curvature_at_follows_the_segments():
+    route = _route()
+    np.testing.assert_array_equal(route.curvature_at(np.array([-5.0, 10.0, 60.0, 100.0, 500.0])),
+                                  [0.0, 0.0, 1 / 30, -1 / 50, -1 / 50])
+
+
+def _turn_street(arms_4way: bool) -> tuple[Street, CrossSection]:
+    """The route heads +x, turns left on a radius of 15 m and heads +y; the corner is (115, 0)."""
+    route = Route(np.zeros(2), 0.0, np.array([100.0, 15.0 * np.pi / 2, 100.0]), np.array([0.0, 1 / 15, 0.0]))
+    section = CrossSection(1, False, +1)
+    s = 100.0 + 15.0 * np.pi / 4
+    corner = np.array([115.0, 0.0])
+    junctions = [Intersection(s, corner, np.pi / 2, arms=(-1,), half_span=15.0 * np.pi / 4 + 2.0)]
+    if arms_4way:
+        junctions.append(Intersection(s, corner, 0.0, arms=(1,), half_span=15.0 * np.pi / 4 + 2.0))
+    return Street(route, section, tuple(junctions), center_line_yellow=True), section
+
+
+def test_turn_junction_paves_only_the_arms_off_the_route():
+    beyond = np.array([[150.0, 0.0]])  # straight on, past the corner
+    behind = np.array([[115.0, -40.0]])  # the crossing street's arm opposite the outgoing road
+    # On the outgoing road's pavement, where a crossing street with both arms would be asphalt.
+    outside = np.array([[115.0 + 6.5, 40.0]])
+    t_street, section = _turn_street(arms_4way=False)
+    assert section.kerb < 6.5 < section.pavement_outer
+    klass, _, _ = t_street.surface(np.concatenate([beyond, behind, outside]))
+    np.testing.assert_array_equal(klass, [2, 0, 1])
+    four_way, _ = _turn_street(arms_4way=True)
+    klass, _, _ = four_way.surface(np.concatenate([beyond, behind, outside]))
+    np.testing.assert_array_equal(klass, [0, 0, 1])
+
+
+def test_turn_junction_spans_the_whole_turn_and_has_no_zebras():
+    street, _ = _turn_street(arms_4way=True)
+    junction = street.intersections[0]
+    assert not junction.through and Intersection(0.0, np.zeros(2), 0.0).through
+    inside = np.array([100.0 - 1.0, 100.0 + 15.0 * np.pi / 2 + 1.0])
+    assert street.near_intersection(inside, margin=0.0).tolist() == [True, True]
+    assert street.near_intersection(np.array([80.0]), margin=0.0).tolist() == [False]
+    s = np.linspace(90.0, 140.0, 200)
+    xy, _ = street.route.pose(s, 0.25)  # where zebra stripes would be painted
+    _, markings, _ = street.surface(xy)
+    assert not markings.any()
+
+
+def test_car_park_is_asphalt_with_slanted_bay_lines():
+    route = Route(np.zeros(2), 0.0, np.array([400.0]), np.array([0.0]))
+    section = CrossSection(1, False, +1)
+    park = CarPark(side=-1, s0=100.0, s1=140.0, depth=6.5, angle=np.pi / 4)
+    street = Street(route, section, (), center_line_yellow=True, car_parks=(park,))
+    y = -(section.pavement_outer + 3.0)
+    klass, markings, _ = street.surface(np.array([[120.0, y], [160.0, y], [120.0, -(section.pavement_outer + 7.0)]]))
+    np.testing.assert_array_equal(klass, [0, 2, 2])
+    assert park.bay_spacing == pytest.approx(BAY_WIDTH * np.sqrt(2))
+    # Along a bay line the paint continues: s grows with the distance into the car park.
+    across = np.array([1.5, 2.0, 4.0])
+    on_line = np.column_stack([100.0 + 3 * park.bay_spacing + across, -(section.pavement_outer + across)])
+    _, markings, _ = street.surface(on_line)
+    assert markings.all()
+    assert street.in_car_park(np.array([120.0, 120.0]), np.array([y, -y])).tolist() == [True, False]
 
 
 def test_albedo_is_deterministic_and_in_range():

@@ -7,7 +7,11 @@ from sianms_cli.synth.shapes import KINDS, Parts, concat_parts, object_parts, pl
 
 SIZES = {"car": (1.95, 4.62, 1.73), "truck": (2.51, 6.93, 2.84), "bus": (2.93, 11.23, 3.47),
          "pedestrian": (0.67, 0.73, 1.77), "bicycle": (0.6, 1.7, 1.28), "motorcycle": (0.77, 2.11, 1.47),
-         "barrier": (2.53, 0.5, 0.98), "traffic_cone": (0.41, 0.41, 1.07), "building": (12.0, 20.0, 15.0)}
+         "barrier": (2.53, 0.5, 0.98), "traffic_cone": (0.41, 0.41, 1.07), "building": (12.0, 20.0, 15.0),
+         "tree": (5.0, 4.5, 9.0), "hedge": (0.4, 2.5, 1.2), "fence": (0.06, 2.5, 1.2),
+         "street_light": (1.8, 0.4, 9.0), "utility_pole": (1.8, 0.3, 10.0), "sign": (0.6, 0.1, 2.85),
+         "traffic_light": (0.36, 0.4, 3.5), "hydrant": (0.4, 0.3, 0.75), "bin": (0.5, 0.5, 1.0),
+         "bollard": (0.18, 0.18, 0.95)}
 
 
 def _bounds(parts):
@@ -48,6 +52,28 @@ def test_child_head_is_a_larger_share_of_the_height():
         skin = parts.material == shapes.SKIN
         return (2 * parts.half_size[skin, 2]).max() / h
     assert head_share(1.2) > head_share(1.8)
+
+
+def test_tree_crown_is_lifted_over_the_road_side():
+    """Below the overhead clearance the crown reaches only CROWN_KERB_SIDE towards -y (the
+    road); the trunk stands at the box centre and the crown starts CROWN_BASE up."""
+    w, l, h = SIZES["tree"]
+    parts = object_parts("tree", (w, l, h), sample_appearance("tree", np.random.default_rng(0)))
+    lo = parts.center - parts.half_size
+    low = lo[:, 2] + h / 2 < shapes.OVERHEAD_CLEARANCE
+    assert lo[low, 1].min() == pytest.approx(-shapes.CROWN_KERB_SIDE)
+    trunk = np.argmin(lo[:, 2])
+    np.testing.assert_allclose(parts.center[trunk, :2], 0.0, atol=1e-12)
+    assert np.sort(lo[:, 2])[1] + h / 2 == pytest.approx(shapes.CROWN_BASE)
+
+
+def test_street_light_pole_stands_at_its_documented_place():
+    w, l, h = SIZES["street_light"]
+    parts = object_parts("street_light", (w, l, h), sample_appearance("street_light", np.random.default_rng(0)))
+    pole = np.argmax(parts.half_size[:, 2])
+    assert parts.center[pole, 1] == pytest.approx(w / 2 - shapes.STREET_LIGHT_POLE_INSET)
+    arm_top = (parts.center - parts.half_size)[:, 1].min()
+    assert arm_top == pytest.approx(-w / 2)
 
 
 def test_place_parts_rotates_about_the_object_centre():

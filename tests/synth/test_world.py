@@ -8,10 +8,29 @@ from sianms_cli.synth.world import (
     plan_scene,
 )
 
+SEEDED = range(40)
+"""The seeded set of scenes in which every kind of place must appear."""
+VARIED = (0, 1, 2, 3, 4, 5, 30, 36, 38)
+"""Seeds whose plans cover straight drives, turns at T and 4-way junctions, roadworks and
+perpendicular and diagonal car parks (checked by test_the_varied_plans_cover_every_place)."""
+
+
+def _plan(seed: int):
+    return plan_scene(np.random.default_rng(seed), drive_side=+1 if seed % 2 else -1)
+
 
 @pytest.fixture(scope="module")
 def plans():
-    return [plan_scene(np.random.default_rng(seed), drive_side=+1 if seed % 2 else -1) for seed in range(6)]
+    return [_plan(seed) for seed in VARIED]
+
+
+@pytest.fixture(scope="module")
+def seeded():
+    return [_plan(seed) for seed in SEEDED]
+
+
+def _turning(plan) -> bool:
+    return any(not junction.through for junction in plan.street.intersections)
 
 
 def _times():
@@ -19,11 +38,33 @@ def _times():
 
 
 def test_plan_is_deterministic():
-    a = plan_scene(np.random.default_rng(5), drive_side=1)
-    b = plan_scene(np.random.default_rng(5), drive_side=1)
-    np.testing.assert_array_equal(a.agents.p0, b.agents.p0)
-    np.testing.assert_array_equal(a.agents.size, b.agents.size)
-    assert len(a.buildings) == len(b.buildings)
+    for seed in (5, 36):
+        a = plan_scene(np.random.default_rng(seed), drive_side=1)
+        b = plan_scene(np.random.default_rng(seed), drive_side=1)
+        for field in ("p0", "size", "offset", "line", "speed", "p_range", "yaw_offset"):
+            np.testing.assert_array_equal(getattr(a.agents, field), getattr(b.agents, field))
+        np.testing.assert_array_equal(a.route.lengths, b.route.lengths)
+        np.testing.assert_array_equal(a.route.curvatures, b.route.curvatures)
+        assert [(i.s, i.heading, i.arms) for i in a.street.intersections] == \
+            [(i.s, i.heading, i.arms) for i in b.street.intersections]
+        assert a.street.car_parks == b.street.car_parks
+        assert len(a.buildings) == len(b.buildings)
+
+
+def test_every_place_type_appears_in_the_seeded_scenes(seeded):
+    turns = [tuple(i.arms for i in p.street.intersections if not i.through) for p in seeded]
+    assert sum(map(bool, turns)) == 8  # 20 % of 40: nuScenes has 73.9 % go-straight scenarios
+    assert ((-1,),) in turns and ((-1,), (1,)) in turns  # T and 4-way junctions
+    assert any(i.through for p in seeded for i in p.street.intersections)
+    angles = {round(float(np.degrees(c.angle))) for p in seeded for c in p.street.car_parks}
+    assert angles == {90, 60, 45}
+    assert sum(p.roadworks for p in seeded) == 7  # 18 %, a minority
+
+
+def test_the_varied_plans_cover_every_place(plans):
+    assert {tuple(i.arms for i in p.street.intersections if not i.through) for p in plans} >= {(), ((-1,),), ((-1,), (1,))}
+    assert {round(float(np.degrees(c.angle))) for p in plans for c in p.street.car_parks} == {90, 60, 45}
+    assert any(p.roadworks for p in plans) and not all(p.roadworks for p in plans)
 
 
 def test_no_two_road_users_overlap_at_any_keyframe(plans):
@@ -45,13 +86,63 @@ def test_nobody_sits_on_the_ego(plans):
 
 
 def test_speeds_are_consistent_with_positions(plans):
-    plan = plans[0]
     dt = 1e-3
-    for t in (3.0, 11.0):
-        center, _, speed = plan.agents.pose(plan.route, t)
-        later, _, _ = plan.agents.pose(plan.route, t + dt)
-        moved = np.hypot(*(later[:, :2] - center[:, :2]).T) / dt
-        np.testing.assert_allclose(moved, speed, atol=1e-3)
+    for plan in plans:
+        for t in (3.0, 11.0, 16.0):
+            center, _, speed = plan.agents.pose(plan.route, t)
+            later, _, _ = plan.agents.pose(plan.route, t + dt)
+            moved = np.hypot(*(later[:, :2] - center[:, :2]).T) / dt
+            np.testing.assert_allclose(moved, speed, atol=2e-3)
+
+
+def test_turning_tracks_head_where_they_move(plans):
+    """On the turn and on the crossing streets, a moving road user's yaw is its direction of
+    travel (or the opposite, for the route's oncoming traffic whose path runs backwards)."""
+    dt = 1e-3
+    turning = [p for p in plans if _turning(p)]
+    assert turning
+    for plan in turning:
+        vehicles = np.array([c.startswith("vehicle.") for c in plan.agents.category])
+        for t in np.arange(0.0, SCENE_SECONDS, 2.5):
+            center, yaw, speed = plan.agents.pose(plan.route, t)
+            later, _, _ = plan.agents.pose(plan.route, t + dt)
+            moving = vehicles & (speed > 1.0)
+            step = later[moving, :2] - center[moving, :2]
+            motion = np.arctan2(step[:, 1], step[:, 0])
+            error = np.angle(np.exp(1j * (motion - yaw[moving])))
+            assert np.all(np.abs(error) < 0.06)
+
+
+def test_the_ego_turns_through_its_junction(plans):
+    for plan in (p for p in plans if _turning(p)):
+        junction = next(i for i in plan.street.intersections if not i.through)
+        start = plan.ego.s(0.0)
+        end = plan.ego.s(SCENE_SECONDS)
+        assert start < junction.s - junction.half_span and junction.s + junction.half_span < end
+        _, yaw0 = plan.ego.pose(plan.route, 0.0)
+        _, yaw1 = plan.ego.pose(plan.route, SCENE_SECONDS)
+        np.testing.assert_allclose(abs(np.angle(np.exp(1j * (yaw1 - yaw0)))), np.pi / 2, atol=1e-9)
+
+
+def test_crossing_streets_carry_moving_traffic(plans):
+    moving = 0
+    for plan in plans:
+        on_line = plan.agents.on_line
+        speeds = np.stack([plan.agents.pose(plan.route, t)[2] for t in _times()])
+        moving += int(np.any(speeds[:, on_line] > 1.0, axis=0).sum())
+    assert moving >= 10, "crossing streets hold queues only"
+
+
+def test_car_park_cars_stand_in_their_bays_at_the_bay_angle(plans):
+    for plan in plans:
+        parked = plan.agents.parked & (plan.agents.category == "vehicle.car")
+        in_park = parked & plan.street.in_car_park(plan.agents.p0, plan.agents.offset)
+        for park in plan.street.car_parks:
+            mine = in_park & (np.sign(plan.agents.offset) == park.side) \
+                & (plan.agents.p0 > park.s0) & (plan.agents.p0 < park.s1)
+            assert mine.any()
+            relative = np.mod(plan.agents.yaw_offset[mine] - park.side * park.angle + np.pi / 2, np.pi) - np.pi / 2
+            assert np.all(np.abs(relative) < 0.15)  # nose in or reversed in, 0.03 rad spread
 
 
 def test_sizes_stay_within_two_standard_deviations(plans):

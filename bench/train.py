@@ -1,0 +1,93 @@
+"""Benchmark of `sianms train siamese` on this machine's CPU.
+
+Prints, all measured in the same run, each in a fresh process:
+- training pairs per second over the epochs (one positive and one hard negative per
+  reference; the negative candidates scored without gradients are counted apart) with 1
+  and 2 torch threads, and their ratio;
+- peak resident memory of one training epoch on a cache and on the same cache 4x (its shard
+  files copied under other names), and their ratio (scene-by-scene streaming: near 1).
+
+Usage: python bench/train.py [--scenes 2] [--seconds 6] [--image-scale 0.25] [--epochs 3] [--keep DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+from sianms_cli.prepare.config import PrepareConfig
+from sianms_cli.prepare.job import run as prepare
+from sianms_cli.synth.generate import SynthConfig, run as run_synth
+
+CHILD = """
+import json, resource, sys
+import torch
+torch.set_num_threads(int(sys.argv[3]))
+from sianms_cli.training.siamese import SiameseConfig, run
+config = SiameseConfig(cache=sys.argv[1], epochs=int(sys.argv[4]), device="cpu")
+result = run(config, sys.argv[2])
+seconds = sum(row["seconds"] for row in result.history)  # the epochs only: no start-up, no curves.png
+references = sum(row["train_references"] for row in result.history)
+candidates = sum(row["train_references"] * row["train_candidates_per_negative"] for row in result.history)
+print(json.dumps({"pairs_per_s": 2 * references / seconds, "candidates_per_s": candidates / seconds,
+                  "references": references, "seconds": seconds,
+                  "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+"""
+
+
+def make_cache(root: Path, scenes: int, seconds: float, scale: float) -> Path:
+    """A synthetic dataset of ``scenes`` scenes and its cache of every scene (split "all")."""
+    data = run_synth(SynthConfig(scenes=scenes, image_scale=scale, scene_seconds=seconds, seed=1), root / "data").out
+    (data / "v1.0-mini" / "splits.json").write_text(json.dumps({"all": SynthConfig(scenes=scenes).scene_names()}))
+    return prepare(PrepareConfig(str(data), "v1.0-mini", "all", fill_missed=True), root / "cache").out
+
+
+def copies(cache: Path, times: int, out: Path) -> Path:
+    """The cache's detections and pairs shards ``times`` over, under distinct names."""
+    for folder in ("detections", "pairs"):
+        (out / folder).mkdir(parents=True)
+        for path in sorted((cache / folder).glob("*.parquet")):
+            for k in range(times):
+                shutil.copyfile(path, out / folder / f"{path.stem}-{k}.parquet")
+    return out
+
+
+def child(cache: Path, out: Path, threads: int, epochs: int) -> dict:
+    done = subprocess.run([sys.executable, "-c", CHILD, str(cache), str(out), str(threads), str(epochs)],
+                          capture_output=True, text=True, check=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenes", type=int, default=2)
+    parser.add_argument("--seconds", type=float, default=6.0)
+    parser.add_argument("--image-scale", type=float, default=0.25)
+    parser.add_argument("--epochs", type=int, default=3)
+    parser.add_argument("--keep", type=Path, default=None, help="Folder to keep the dataset, caches and runs in.")
+    args = parser.parse_args()
+    work = args.keep or Path(tempfile.mkdtemp(prefix="sianms-bench-train-"))
+    cache = make_cache(work, args.scenes, args.seconds, args.image_scale)
+    manifest = json.loads((cache / "manifest.json").read_text())
+    print(f"cache: {manifest['counts']['detections']} detections, {manifest['counts']['pairs']} pairs "
+          f"({args.scenes} scenes x {args.seconds:g} s, images x{args.image_scale:g}); siamese defaults (d = 100)")
+    rates = {threads: child(cache, work / f"run-t{threads}", threads, args.epochs) for threads in (1, 2)}
+    for threads, figures in rates.items():
+        print(f"{threads} thread(s): {figures['pairs_per_s']:.1f} pairs/s, {figures['candidates_per_s']:.1f} "
+              f"negative candidates scored/s ({figures['references']} references in {figures['seconds']:.1f} s)")
+    print(f"2 threads / 1 thread: {rates[2]['pairs_per_s'] / rates[1]['pairs_per_s']:.2f}x")
+    big = copies(cache, 4, work / "cache-4x")
+    memory = {times: child(folder, work / f"run-{times}x", 1, 1)["peak_rss_mb"] for times, folder in ((1, cache), (4, big))}
+    print(f"peak RSS, one epoch: 1x cache {memory[1]:.0f} MB, 4x cache {memory[4]:.0f} MB "
+          f"(ratio {memory[4] / memory[1]:.2f})")
+    if args.keep is None:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

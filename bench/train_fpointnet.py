@@ -1,0 +1,84 @@
+"""Benchmark of Frustum PointNets v1 training and inference steps on this machine's CPU.
+
+Prints frustums per second for training (forward + loss + backward + Adam step) and
+inference (eval mode, no grad) with 1 and 2 torch threads, at the given point counts, and
+the 2-thread / 1-thread ratio measured in the same run (models.md §8 measured 17 frustums/s
+at 1,024 points on 2 threads, 10 on 1; 1.7-1.8x). Batches are random tensors of the real
+shapes: the cache's reading costs well under 1 % of a step (one shard in memory at a time).
+
+Usage: python bench/train_fpointnet.py [--points 1024,512] [--batch 32] [--steps 5] [--bf16]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import time
+
+import torch
+
+from sianms_cli.models.fpointnet import FPointNetV1
+from sianms_cli.models.fpointnet_losses import fpointnet_loss
+
+MEAN_SIZES = torch.tensor([[4.61, 1.95, 1.72], [0.73, 0.66, 1.76], [1.68, 0.60, 1.27]])
+
+
+def batch(size: int, points: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, dict]:
+    """Random points, one-hot vectors and targets of a batch."""
+    classes = torch.randint(0, 3, (size,), generator=generator)
+    targets = {"seg": torch.randint(0, 2, (size, points), generator=generator),
+               "center": torch.randn(size, 3, generator=generator) + torch.tensor([0.0, 1.0, 20.0]),
+               "heading": torch.rand(size, generator=generator) * 6.28 - 3.14,
+               "lwh": MEAN_SIZES[classes] * 1.05, "size_class": classes}
+    return torch.randn(size, points, 4, generator=generator), torch.eye(3)[classes], targets
+
+
+def frustums_per_second(points: int, size: int, steps: int, train: bool, bf16: bool) -> float:
+    """Frustums per second over ``steps`` steps after one warm-up step."""
+    torch.manual_seed(0)
+    generator = torch.Generator().manual_seed(0)
+    model = FPointNetV1(MEAN_SIZES)
+    optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
+    model.train(train)
+    x, one_hot, targets = batch(size, points, generator)
+    autocast = torch.autocast("cpu", dtype=torch.bfloat16) if bf16 else contextlib.nullcontext()
+
+    def step() -> None:
+        with autocast:
+            if not train:
+                with torch.no_grad():
+                    model(x, one_hot)
+                return
+            losses = fpointnet_loss(model(x, one_hot), targets, model.mean_sizes)
+        optimizer.zero_grad()
+        losses["total"].float().backward()
+        optimizer.step()
+
+    step()
+    start = time.perf_counter()
+    for _ in range(steps):
+        step()
+    return steps * size / (time.perf_counter() - start)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--points", default="1024,512")
+    parser.add_argument("--batch", type=int, default=32)
+    parser.add_argument("--steps", type=int, default=5)
+    parser.add_argument("--bf16", action="store_true", help="bfloat16 autocast (AMX CPUs)")
+    args = parser.parse_args()
+    print(f"F-PointNets v1, batch {args.batch}, {args.steps} timed steps, {'bf16' if args.bf16 else 'float32'}")
+    print("points | mode      | 1 thread | 2 threads | ratio")
+    for points in (int(p) for p in args.points.split(",")):
+        for train in (True, False):
+            rates = []
+            for threads in (1, 2):
+                torch.set_num_threads(threads)
+                rates.append(frustums_per_second(points, args.batch, args.steps, train, args.bf16))
+            mode = "train" if train else "inference"
+            print(f"{points:6d} | {mode:9s} | {rates[0]:8.1f} | {rates[1]:9.1f} | {rates[1] / rates[0]:.2f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,1 @@
+"""Networks and losses: the siamese embedding net (:mod:`.siamese`), its loss (:mod:`.losses`)."""

@@ -1,0 +1,1 @@
+"""Training: the run folder shared by every model (:mod:`.run`) and one loop per model."""

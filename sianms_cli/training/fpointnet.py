@@ -1,0 +1,287 @@
+"""Training Frustum PointNets v1 on a prepared cache (issue 9; models.md §1.10-1.14).
+
+Defaults are the original's (FPN-TF ``train/train.py`` and its scripts, models.md §1.12):
+Adam, learning rate 1e-3 halved every 800,000 samples seen (staircase), batch 32, 201
+epochs, 1,024 points per frustum, batch-norm momentum 0.5 halved on the same steps down to
+0.01 (TF's BN decay 0.5 -> 0.99 in PyTorch's convention). Every value is a config field.
+
+Each epoch trains on the cache's single-camera frustums (streamed, :mod:`sianms_cli.data.
+frustum_dataset`), then, with a validation cache, measures per class and overall: the loss,
+segmentation accuracy, 3-D IoU >= 0.5 and >= 0.7 rates, centre error (m) and heading
+error (rad, wrapped to [0, π]). curves.png is redrawn every 10 epochs and at the end
+(its ~40 panels take seconds). The run folder is the shared one (:mod:`.run`); the
+checkpoint's ``extra`` holds what inference needs: classes, size-cluster means (l, w, h),
+heading bins. Every random draw of an epoch comes from :func:`~.run.epoch_generator`, so a
+resumed run ends where an uninterrupted one ends.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import torch
+
+from sianms_cli.data.frustum_dataset import Augmentation, FrustumSelection, class_statistics, iterate_batches
+from sianms_cli.errors import SianmsError
+from sianms_cli.geometry.iou3d import box_iou3d
+from sianms_cli.models.fpointnet import NUM_HEADING_BINS, FPointNetV1
+from sianms_cli.models.fpointnet_losses import decode_boxes, fpointnet_loss
+from sianms_cli.nuscenes.classes import PAPER_CLASSES
+from sianms_cli.progress import SILENT, Progress
+from sianms_cli.training.run import (
+    Checkpoint,
+    RunFolder,
+    choose_device,
+    epoch_generator,
+    load_state,
+    plain,
+    seed_everything,
+    set_learning_rate,
+)
+
+# Size clusters for a class without a training frustum: the nuScenes means (l, w, h) MM3D uses
+# as anchors (models.md §1.8). A class with neither is refused.
+PRIOR_SIZES = {
+    "car": (4.60718145, 1.95017717, 1.72270761),
+    "pedestrian": (0.7256437, 0.66344886, 1.75748069),
+    "bicycle": (1.68452161, 0.60058911, 1.27192197),
+    "motorcycle": (2.09973778, 0.76279481, 1.44403034),
+}
+CURVES_EVERY = 10  # epochs between redraws of curves.png (about 40 panels: seconds each); also at the end
+LOSS_TERMS = ("total", "mask", "center", "stage1_center", "heading_class", "heading_residual", "size_class",
+              "size_residual", "corner")
+
+
+@dataclass(frozen=True)
+class FPointNetConfig:
+    """What `sianms train fpointnet` does; defaults are the original's (module docstring)."""
+
+    cache: str
+    val_cache: str | None = None
+    classes: tuple[str, ...] = PAPER_CLASSES
+    num_points: int = 1024
+    min_box_height: float = 25.0  # pixels; 0 keeps every frustum
+    intensity: bool = True
+    flip: bool = True
+    shift: bool = True
+    jitter: bool = True
+    epochs: int = 201
+    batch_size: int = 32
+    lr: float = 1e-3
+    decay_step: int = 800_000  # samples seen per halving of the learning rate and BN momentum
+    decay_rate: float = 0.5
+    bn_momentum: float = 0.5  # PyTorch momentum at the start (TF BN decay 0.5)
+    bn_momentum_min: float = 0.01  # TF BN decay capped at 0.99
+    box_weight: float = 1.0
+    corner_weight: float = 10.0
+    num_object_points: int = 512
+    seed: int = 0
+    device: str = "auto"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "classes", tuple(self.classes))
+        if not self.classes or len(set(self.classes)) != len(self.classes):
+            raise SianmsError(f"--classes must name distinct classes, got {','.join(self.classes)}")
+        for name in ("num_points", "epochs", "batch_size", "decay_step", "num_object_points"):
+            if getattr(self, name) < 1:
+                raise SianmsError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}")
+        if self.batch_size < 2:
+            raise SianmsError("--batch-size must be at least 2 (batch norm)")
+        if not (self.lr > 0 and 0 < self.decay_rate <= 1 and self.min_box_height >= 0):
+            raise SianmsError("--lr must be > 0, --decay-rate in (0, 1], --min-box-height >= 0")
+
+    @property
+    def selection(self) -> FrustumSelection:
+        return FrustumSelection(self.classes, self.num_points, self.min_box_height, self.intensity)
+
+    @property
+    def augmentation(self) -> Augmentation:
+        return Augmentation(self.flip, self.shift, self.jitter)
+
+
+@dataclass
+class FPointNetResult:
+    """What a training returns: the run folder, the per-epoch history, the size clusters,
+    the epochs already done when it started (resume), the model's parameter count."""
+
+    out: Path
+    history: list[dict[str, Any]]
+    mean_sizes: np.ndarray
+    resumed_from: int
+    parameters: int
+
+
+def schedule(config: FPointNetConfig, samples: int) -> tuple[float, float]:
+    """(learning rate, BN momentum) after ``samples`` training samples (staircase, models.md §1.12)."""
+    steps = samples // config.decay_step
+    lr = config.lr * config.decay_rate ** steps
+    return lr, max(config.bn_momentum_min, config.bn_momentum * 0.5 ** steps)
+
+
+def size_clusters(config: FPointNetConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(counts (K,), mean (l, w, h) (K, 3)) of the training frustums; priors for empty classes."""
+    counts, means = class_statistics(config.cache, config.selection)
+    if counts.sum() == 0:
+        raise SianmsError(f"{config.cache}: no training frustum of {', '.join(config.classes)} "
+                          "(with a box, an object point and the minimum box height)")
+    for k in np.flatnonzero(counts == 0):
+        name = config.classes[k]
+        if name not in PRIOR_SIZES:
+            raise SianmsError(f"{config.cache}: no training frustum of class '{name}' to size its cluster")
+        means[k] = PRIOR_SIZES[name]
+    return counts, means
+
+
+def to_tensors(batch: dict[str, np.ndarray], num_classes: int, device: torch.device) -> dict[str, torch.Tensor]:
+    """The model's inputs and the loss's targets of a numpy batch."""
+    tensor = {key: torch.as_tensor(batch[key]).to(device) for key in ("points", "seg", "class_index")}
+    for key in ("center", "heading", "lwh"):
+        tensor[key] = torch.as_tensor(batch[key], dtype=torch.float32).to(device)
+    tensor["one_hot"] = torch.nn.functional.one_hot(tensor["class_index"], num_classes).float()
+    tensor["size_class"] = tensor["class_index"]
+    return tensor
+
+
+def box_scores(outputs: dict[str, torch.Tensor]) -> torch.Tensor:
+    """(B,) the original's 3-D box score with GT 2-D boxes (FPN-TF ``test.py``, models.md §1.14).
+
+    log(mean object probability over the points predicted as object) + log(max heading-bin
+    probability) + log(max size-cluster probability). Where no point is predicted as object
+    the original's mean is undefined (NaN); the highest object probability stands in, which
+    is below 0.5, so such a box ranks below any box with a mask.
+    """
+    object_probability = outputs["seg_logits"].softmax(dim=2)[..., 1]
+    mask = outputs["mask"]
+    masked_mean = (object_probability * mask).sum(dim=1) / mask.sum(dim=1).clamp(min=1)
+    mask_term = torch.where(mask.any(dim=1), masked_mean, object_probability.amax(dim=1))
+    return (mask_term.log() + outputs["heading_scores"].log_softmax(dim=1).amax(dim=1)
+            + outputs["size_scores"].log_softmax(dim=1).amax(dim=1))
+
+
+def predict(model: FPointNetV1, tensors: dict[str, torch.Tensor],
+            generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
+    """Boxes of a batch in the frustum frame: ``center``, ``heading``, ``lwh`` (l, w, h), ``score``,
+    plus the raw outputs (the model must be in eval mode)."""
+    outputs = model(tensors["points"], tensors["one_hot"], generator=generator)
+    boxes = decode_boxes(outputs, model.mean_sizes, model.num_heading_bins)
+    return {**outputs, **{f"box_{key}": value for key, value in boxes.items()}, "score": box_scores(outputs)}
+
+
+def train_epoch(model: FPointNetV1, optimizer: torch.optim.Optimizer, config: FPointNetConfig,
+                rng: np.random.Generator, generator: torch.Generator, samples: int, device: torch.device,
+                progress: Progress) -> tuple[dict[str, float], int]:
+    """One pass over the training cache; (mean loss terms weighted by batch size, samples seen after)."""
+    model.train()
+    sums = dict.fromkeys(LOSS_TERMS, 0.0)
+    seen = 0
+    for batch in iterate_batches(config.cache, config.selection, config.batch_size, rng, True, config.augmentation):
+        lr, momentum = schedule(config, samples)
+        set_learning_rate(optimizer, lr)
+        model.set_bn_momentum(momentum)
+        tensors = to_tensors(batch, len(config.classes), device)
+        outputs = model(tensors["points"], tensors["one_hot"], generator=generator)
+        losses = fpointnet_loss(outputs, tensors, model.mean_sizes, config.box_weight, config.corner_weight)
+        optimizer.zero_grad(set_to_none=True)
+        losses["total"].backward()
+        optimizer.step()
+        size = len(batch["center"])
+        for term in LOSS_TERMS:
+            sums[term] += losses[term].item() * size
+        seen += size
+        samples += size
+        progress.advance(size)
+    return {f"train_{term}": value / max(seen, 1) for term, value in sums.items()}, samples
+
+
+@torch.no_grad()
+def validate(model: FPointNetV1, config: FPointNetConfig, rng: np.random.Generator, generator: torch.Generator,
+             device: torch.device) -> dict[str, float]:
+    """Loss and box figures on the validation cache, overall and per class (module docstring)."""
+    model.eval()
+    rows: dict[str, list[np.ndarray]] = {key: [] for key in ("class", "iou", "center", "heading", "seg", "loss")}
+    for batch in iterate_batches(config.val_cache, config.selection, config.batch_size, rng, False):
+        tensors = to_tensors(batch, len(config.classes), device)
+        prediction = predict(model, tensors, generator)
+        losses = fpointnet_loss(prediction, tensors, model.mean_sizes, config.box_weight, config.corner_weight)
+        center = prediction["box_center"].double().cpu().numpy()
+        heading = prediction["box_heading"].double().cpu().numpy()
+        rows["class"].append(batch["class_index"])
+        rows["iou"].append(box_iou3d(center, prediction["box_lwh"].double().cpu().numpy(), heading,
+                                     batch["center"], batch["lwh"], batch["heading"]))
+        rows["center"].append(np.linalg.norm(center - batch["center"], axis=1))
+        rows["heading"].append(np.abs(np.remainder(heading - batch["heading"] + np.pi, 2 * np.pi) - np.pi))
+        rows["seg"].append((prediction["mask"].cpu().numpy() == (batch["seg"] == 1)).mean(axis=1))
+        rows["loss"].append(np.full(len(center), losses["total"].item()))
+    if not rows["class"]:
+        return {}
+    joined = {key: np.concatenate(value) for key, value in rows.items()}
+    metrics = _figures("val", joined, np.ones(len(joined["class"]), dtype=bool))
+    for k, name in enumerate(config.classes):
+        metrics.update(_figures(f"val_{name}", joined, joined["class"] == k))
+    return metrics
+
+
+def _figures(prefix: str, rows: dict[str, np.ndarray], keep: np.ndarray) -> dict[str, float]:
+    """The validation figures of the rows ``keep`` (NaN, written as an empty cell, where none)."""
+    count = int(keep.sum())
+    mean = (lambda values: float(values[keep].mean())) if count else (lambda values: math.nan)
+    figures = {f"{prefix}_count": count, f"{prefix}_seg_accuracy": mean(rows["seg"]),
+               f"{prefix}_iou_0.5": mean(rows["iou"] >= 0.5), f"{prefix}_iou_0.7": mean(rows["iou"] >= 0.7),
+               f"{prefix}_center_error": mean(rows["center"]), f"{prefix}_heading_error": mean(rows["heading"])}
+    if prefix == "val":
+        figures["val_loss"] = mean(rows["loss"])  # batch means weighted by batch size
+    return figures
+
+
+def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, resume: bool = False,
+        progress: Progress = SILENT, on_epoch: Callable[[dict[str, Any]], None] | None = None) -> FPointNetResult:
+    """Train Frustum PointNets v1 on ``config.cache`` into the run folder ``out``.
+
+    Args:
+        config: what to train.
+        out: run folder (:class:`~sianms_cli.training.run.RunFolder`).
+        overwrite: replace a finished or stopped run in ``out``.
+        resume: continue the run in ``out`` from its checkpoint.
+        progress: told the frustums of each epoch as they are trained.
+        on_epoch: called with each finished epoch's row of metrics.csv.
+    """
+    counts, mean_sizes = size_clusters(config)
+    device = choose_device(config.device)
+    folder = RunFolder.open(out, kind="fpointnet", config=plain(asdict(config)), overwrite=overwrite,
+                            resume=resume, may_differ=("epochs", "device"))
+    with folder:
+        seed_everything(config.seed)
+        model = FPointNetV1(torch.as_tensor(mean_sizes), 4 if config.intensity else 3,
+                            num_object_points=config.num_object_points).to(device)
+        optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+        history: list[dict[str, Any]] = []
+        start, samples = 0, 0
+        if folder.resumed is not None:
+            load_state(model, folder.resumed.model, folder.checkpoint_path)
+            optimizer.load_state_dict(folder.resumed.optimizer)
+            start, history = folder.resumed.epoch, list(folder.resumed.history)
+            samples = int(folder.resumed.extra["samples"])
+        for epoch in range(start, config.epochs):
+            rng = epoch_generator(config.seed, epoch)
+            torch.manual_seed(int(rng.integers(2**62)))  # dropout
+            generator = torch.Generator(device=device).manual_seed(int(rng.integers(2**62)))  # masking
+            progress.start(int(counts.sum()), "frustum", f"epoch {epoch + 1}/{config.epochs}")
+            row: dict[str, Any] = {"epoch": epoch + 1, "lr": schedule(config, samples)[0]}
+            losses, samples = train_epoch(model, optimizer, config, rng, generator, samples, device, progress)
+            row.update(losses)
+            if config.val_cache is not None:
+                row.update(validate(model, config, rng, generator, device))
+            history.append(row)
+            if on_epoch is not None:
+                on_epoch(row)
+            folder.save(Checkpoint(kind="fpointnet", config=folder.config, epoch=epoch + 1, model=model.state_dict(),
+                                   optimizer=optimizer.state_dict(), history=history,
+                                   extra={"samples": samples, "classes": list(config.classes),
+                                          "mean_sizes": mean_sizes.tolist(), "train_counts": counts.tolist(),
+                                          "num_heading_bins": NUM_HEADING_BINS}),
+                        curves=(epoch + 1) % CURVES_EVERY == 0 or epoch + 1 == config.epochs)
+    return FPointNetResult(Path(out), history, mean_sizes, start, sum(p.numel() for p in model.parameters()))

@@ -1,0 +1,381 @@
+"""The run folder every training shares: checkpoint, resolved config, metrics, curves, seeds, device.
+
+Layout of a run folder ``RUN/``::
+
+    config.json      the resolved config (plain JSON), written when the run starts
+    checkpoint.pt    after every epoch: weights, optimizer, epochs done, metrics history,
+                     the resolved config and what a later stage needs (e.g. dis_thr);
+                     plain types and tensors only, so it loads with ``weights_only=True``
+    metrics.csv      one row per finished epoch (rewritten from the checkpoint's history)
+    curves.png       every numeric column of metrics.csv against the epoch
+    .sianms.lock     held while a run writes the folder
+
+Every file is written atomically (hidden temporary name, renamed when complete), so a
+killed run leaves the last finished epoch's files, never a half-written one.
+
+How a training uses it (the whole API)::
+
+    run = RunFolder.open(out, kind="siamese", config=asdict(config), overwrite=..., resume=...,
+                         may_differ=("epochs", "device"))
+    with run:                                   # holds the folder's lock
+        seed_everything(config.seed)
+        model, optimizer = ...
+        start = 0
+        if run.resumed is not None:             # --resume found a checkpoint
+            load_state(model, run.resumed.model, run.checkpoint_path)
+            optimizer.load_state_dict(run.resumed.optimizer)
+            start = run.resumed.epoch
+        for epoch in range(start, config.epochs):
+            set_learning_rate(optimizer, step_decay(config.lr, config.lr_decay, config.lr_step, epoch))
+            rng = epoch_generator(config.seed, epoch)   # every draw of the epoch comes from it
+            ...
+            run.save(Checkpoint(kind="siamese", config=run.config, epoch=epoch + 1,
+                                model=model.state_dict(), optimizer=optimizer.state_dict(),
+                                history=[*history, row], extra={...}))
+
+Resume is exact because nothing random carries over between epochs: each epoch draws
+from :func:`epoch_generator` (seed, epoch, rank), the learning rate is a function of the
+epoch (:func:`step_decay`), and the optimizer state is in the checkpoint. A run killed
+mid-epoch resumes at the start of that epoch and ends bit-for-bit where an uninterrupted
+run ends (on a CPU; CUDA kernels may not be deterministic).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+import pickle
+import random
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+import torch
+
+from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
+from sianms_cli.io import exclusive_lock, make_folder, write_bytes, write_json
+
+CHECKPOINT = "checkpoint.pt"
+CONFIG = "config.json"
+METRICS = "metrics.csv"
+CURVES = "curves.png"
+RUN_FILES = (CHECKPOINT, CONFIG, METRICS, CURVES)
+FOLDER_LOCK_NAME = ".sianms.lock"
+CHECKPOINT_FORMAT = "sianms-checkpoint-1"
+_CHECKPOINT_KEYS = {"format", "kind", "config", "epoch", "model", "optimizer", "history", "extra"}
+
+
+# --------------------------------------------------------------------------- device and seeds
+
+
+def choose_device(name: str) -> torch.device:
+    """``auto`` (CUDA when available, else CPU), ``cpu``, ``cuda`` or ``cuda:N``.
+
+    A CUDA device that is not there is a user error, not a crash deep in the loop.
+    """
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        device = torch.device(name)
+    except RuntimeError:
+        raise SianmsError(f"--device must be auto, cpu, cuda or cuda:N, got '{name}'") from None
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise SianmsError(f"--device {name}: CUDA is not available on this machine")
+    if device.type not in ("cpu", "cuda"):
+        raise SianmsError(f"--device must be auto, cpu, cuda or cuda:N, got '{name}'")
+    return device
+
+
+def init_distributed(device: torch.device) -> tuple[int, int, torch.device]:
+    """(rank, world size, this rank's device); joins torchrun's process group when WORLD_SIZE > 1.
+
+    Under ``torchrun --nproc-per-node K`` each process trains on its share of every global
+    batch with DistributedDataParallel (gloo on CPUs, NCCL on GPUs; CUDA rank r uses
+    ``cuda:LOCAL_RANK``). Rank 0 alone validates and writes the run folder.
+    """
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world <= 1:
+        return 0, 1, device
+    import torch.distributed as dist
+
+    if device.type == "cuda":
+        device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
+        torch.cuda.set_device(device)
+    if not dist.is_initialized():
+        dist.init_process_group(backend="nccl" if device.type == "cuda" else "gloo")
+    return dist.get_rank(), dist.get_world_size(), device
+
+
+def seed_everything(seed: int, rank: int = 0) -> None:
+    """Seed Python's, numpy's global and torch's (CPU and CUDA) generators with ``seed + rank``.
+
+    Model initialisation draws from torch's generator, so the same seed gives the same
+    initial weights; per-epoch sampling uses :func:`epoch_generator` instead.
+    """
+    random.seed(seed + rank)
+    np.random.seed((seed + rank) % 2**32)
+    torch.manual_seed(seed + rank)
+
+
+def epoch_generator(seed: int, epoch: int, rank: int = 0) -> np.random.Generator:
+    """The generator of every random draw of one epoch on one rank.
+
+    Derived from (seed, epoch, rank) alone, so a resumed run draws exactly what an
+    uninterrupted run draws, without saving generator state.
+    """
+    return np.random.default_rng([seed, epoch, rank])
+
+
+def step_decay(lr: float, gamma: float, step: int, epoch: int) -> float:
+    """Learning rate of ``epoch`` (0-based): ``lr * gamma ** (epoch // step)`` (paper: 1e-4, 0.1, 8)."""
+    return lr * gamma ** (epoch // step)
+
+
+def set_learning_rate(optimizer: torch.optim.Optimizer, lr: float) -> None:
+    """Set every parameter group's learning rate (the schedule is a function of the epoch)."""
+    for group in optimizer.param_groups:
+        group["lr"] = lr
+
+
+# --------------------------------------------------------------------------- checkpoints
+
+
+@dataclass
+class Checkpoint:
+    """What ``checkpoint.pt`` holds; plain types and tensors only.
+
+    Attributes:
+        kind: the model ("siamese", "fpointnet"); loading checks it.
+        config: the resolved config (JSON-able dict).
+        epoch: epochs finished.
+        model, optimizer: their ``state_dict()``.
+        history: one dict of figures per finished epoch (the rows of metrics.csv).
+        extra: what later stages read (e.g. ``dis_thr``); plain types and tensors.
+    """
+
+    kind: str
+    config: dict[str, Any]
+    epoch: int
+    model: dict[str, Any]
+    optimizer: dict[str, Any] = field(default_factory=dict)
+    history: list[dict[str, Any]] = field(default_factory=list)
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def save_checkpoint(path: str | Path, checkpoint: Checkpoint) -> Path:
+    """Write ``checkpoint`` atomically to ``path``."""
+    buffer = io.BytesIO()
+    torch.save({"format": CHECKPOINT_FORMAT, **checkpoint.__dict__}, buffer)
+    return write_bytes(path, buffer.getvalue())
+
+
+def load_checkpoint(path: str | Path, kind: str | None = None) -> Checkpoint:
+    """Read a checkpoint with ``torch.load(weights_only=True)``: nothing is unpickled as code.
+
+    A missing file, a file that is not a sianms checkpoint (a pickled object, other keys,
+    another model's ``kind``) raises DataFormatError naming the file and what is wrong.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DataFormatError(path, "file not found")
+    try:
+        with warnings.catch_warnings():  # torch warns of a foreign pickle protocol before refusing it: say it once
+            warnings.simplefilter("ignore", UserWarning)
+            data = torch.load(path, map_location="cpu", weights_only=True)
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, AttributeError, ImportError) as error:
+        first_line = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise DataFormatError(path, f"not a sianms checkpoint (weights-only load refused it: {first_line})") from None
+    if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
+        raise DataFormatError(path, f"not a sianms checkpoint (no format '{CHECKPOINT_FORMAT}')", field="format")
+    foreign = sorted(set(data) - _CHECKPOINT_KEYS)
+    missing = sorted(_CHECKPOINT_KEYS - set(data))
+    if foreign or missing:
+        what = "; ".join(part for part in (f"unexpected keys {foreign}" if foreign else "",
+                                           f"missing keys {missing}" if missing else "") if part)
+        raise DataFormatError(path, f"not a sianms checkpoint: {what}")
+    if kind is not None and data["kind"] != kind:
+        raise DataFormatError(path, f"a '{data['kind']}' checkpoint, expected '{kind}'", field="kind")
+    del data["format"]
+    return Checkpoint(**data)
+
+
+def load_state(module: torch.nn.Module, state: dict[str, Any], path: str | Path) -> None:
+    """``module.load_state_dict(state)`` strictly; a key or shape mismatch names the key and the file."""
+    own = module.state_dict()
+    for key in own:
+        if key not in state:
+            raise DataFormatError(path, "weights do not fit this model (another config?)", field=f"model.{key}")
+    for key, value in state.items():
+        if key not in own:
+            raise DataFormatError(path, "unexpected weight (another model or config?)", field=f"model.{key}")
+        if tuple(value.shape) != tuple(own[key].shape):
+            raise DataFormatError(path, f"shape {tuple(value.shape)}, this model has {tuple(own[key].shape)}",
+                                  field=f"model.{key}")
+    module.load_state_dict(state)
+
+
+# --------------------------------------------------------------------------- metrics and curves
+
+
+def metrics_csv(history: Iterable[dict[str, Any]]) -> str:
+    """CSV text of the history: one row per epoch, columns in order of first appearance."""
+    rows = list(history)
+    columns: list[str] = []
+    for row in rows:
+        columns += [key for key in row if key not in columns]
+    text = io.StringIO()
+    writer = csv.DictWriter(text, fieldnames=columns, lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({key: _csv_value(row.get(key)) for key in columns})
+    return text.getvalue()
+
+
+def _csv_value(value: Any) -> Any:
+    """Floats with full precision (repr), NaN and missing as empty cells."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return ""
+    return repr(value) if isinstance(value, float) else value
+
+
+def plot_curves(history: list[dict[str, Any]], path: str | Path, title: str = "",
+                panels: Sequence[tuple[str, Sequence[str]]] | None = None) -> Path:
+    """curves.png: figures of the history against the epoch.
+
+    ``panels``: (title, columns drawn together) per panel; None draws every numeric column
+    in its own panel. Columns missing from the history are skipped. matplotlib is imported
+    here, with the Agg backend, so nothing else pays for it.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    numeric = [key for key in (history[0] if history else {}) if key != "epoch"
+               and all(isinstance(row.get(key), (int, float)) for row in history)]
+    if panels is None:
+        panels = [(name, [name]) for name in numeric]
+    panels = [(name, [c for c in columns if c in numeric]) for name, columns in panels]
+    panels = [(name, columns) for name, columns in panels if columns]
+    width = 3
+    height = max(1, math.ceil(len(panels) / width))
+    figure, axes = plt.subplots(height, width, figsize=(4 * width, 2.8 * height), squeeze=False)
+    epochs = [row["epoch"] for row in history]
+    for axis, (name, columns) in zip(axes.flat, panels):
+        for column in columns:
+            axis.plot(epochs, [row[column] for row in history], marker="o", markersize=3, label=column)
+        axis.set_title(name, fontsize=9)
+        axis.set_xlabel("epoch", fontsize=8)
+        axis.grid(alpha=0.3)
+        if len(columns) > 1:
+            axis.legend(fontsize=7)
+    for axis in list(axes.flat)[len(panels):]:
+        axis.axis("off")
+    if title:
+        figure.suptitle(title)
+    figure.tight_layout()
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=80)
+    plt.close(figure)
+    return write_bytes(path, buffer.getvalue())
+
+
+# --------------------------------------------------------------------------- the folder
+
+
+class RunFolder:
+    """One run's folder: refuses to clobber, resumes, writes every epoch atomically.
+
+    Build with :meth:`open`; use as a context manager to hold the folder's lock (a second
+    run into the same folder fails at once instead of interleaving checkpoints).
+    """
+
+    def __init__(self, path: Path, kind: str, config: dict[str, Any], resumed: Checkpoint | None,
+                 write: bool = True) -> None:
+        self.path, self.kind, self.config, self.resumed, self.write = path, kind, config, resumed, write
+        self.panels: Sequence[tuple[str, Sequence[str]]] | None = None  # curves.png layout (plot_curves)
+        self._lock = None
+
+    @property
+    def checkpoint_path(self) -> Path:
+        return self.path / CHECKPOINT
+
+    @classmethod
+    def open(cls, out: str | Path, *, kind: str, config: dict[str, Any], overwrite: bool = False,
+             resume: bool = False, may_differ: Iterable[str] = (), write: bool = True) -> RunFolder:
+        """Check ``out`` and return its folder; read its checkpoint when resuming.
+
+        - A folder holding a run (config.json or checkpoint.pt) is refused unless ``resume``
+          (continue it: its config must equal ``config`` except the fields in ``may_differ``)
+          or ``overwrite`` (its run files are deleted; nothing else is touched).
+        - ``resume`` with no checkpoint yet starts afresh.
+        - A non-empty folder that holds no run is refused: it is someone else's.
+        - ``write`` false (the non-zero ranks of a distributed run): check and read only.
+        """
+        path = Path(out)
+        if not write:  # rank 0 checks and may be writing config.json already: only read the checkpoint
+            resumed = load_checkpoint(path / CHECKPOINT, kind) if resume and (path / CHECKPOINT).exists() else None
+            return cls(path, kind, config, resumed, write)
+        if path.exists() and not path.is_dir():
+            raise OutputExistsError(f"{path} exists and is not a folder; choose another --out")
+        has_run = any((path / name).exists() for name in (CONFIG, CHECKPOINT))
+        if path.is_dir() and not has_run and any(p.name != FOLDER_LOCK_NAME for p in path.iterdir()):
+            raise OutputExistsError(f"{path} is a non-empty folder that holds no sianms run; choose another --out")
+        resumed = None
+        if has_run and resume:
+            if (path / CHECKPOINT).exists():
+                resumed = load_checkpoint(path / CHECKPOINT, kind)
+                differ = sorted(key for key in set(config) | set(resumed.config)
+                                if key not in set(may_differ) and config.get(key) != resumed.config.get(key))
+                if differ:
+                    raise SianmsError(f"cannot resume {path}: the config differs in {', '.join(differ)} "
+                                      "(pass the same options, or --overwrite to start afresh)")
+        elif has_run and not overwrite:
+            raise OutputExistsError(f"{path} holds a run; pass --resume to continue it or --overwrite to replace it")
+        folder = cls(path, kind, config, resumed, write)
+        if write and has_run and overwrite and not resume:
+            for name in RUN_FILES:
+                (path / name).unlink(missing_ok=True)
+        return folder
+
+    def __enter__(self) -> RunFolder:
+        if self.write:
+            make_folder(self.path)
+            self._lock = exclusive_lock(self.path / FOLDER_LOCK_NAME, what=str(self.path))
+            self._lock.__enter__()
+            write_json(self.path / CONFIG, {"kind": self.kind, **self.config})
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._lock is not None:
+            self._lock.__exit__(*exc)
+            self._lock = None
+
+    def save(self, checkpoint: Checkpoint, *, curves: bool = True) -> None:
+        """Write the epoch's checkpoint, then metrics.csv and (``curves``) curves.png from its history.
+
+        The checkpoint goes first: metrics.csv never lists an epoch a resume would redo.
+        Drawing costs about a second, so a training draws at its last epoch only.
+        """
+        if not self.write:
+            return
+        save_checkpoint(self.checkpoint_path, checkpoint)
+        write_bytes(self.path / METRICS, metrics_csv(checkpoint.history).encode())
+        if curves and checkpoint.history:
+            plot_curves(checkpoint.history, self.path / CURVES, title=f"{self.kind}: {self.path.name}",
+                        panels=self.panels)
+
+
+def plain(value: Any) -> Any:
+    """``value`` with tuples as lists and paths as strings: what JSON and weights-only loading keep."""
+    if isinstance(value, dict):
+        return {str(key): plain(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [plain(item) for item in value]
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    return value

@@ -1,0 +1,465 @@
+"""`sianms train siamese`: the re-identification network of paper §III-B and §IV.
+
+Training: the encoder of :mod:`sianms_cli.models.siamese` on the cache's ROI features,
+batches of N reference instances paired online as §IV-B (:mod:`sianms_cli.data.siamese`):
+the candidates of each reference's negative instance are embedded without gradients, the
+highest-loss (nearest) one is kept, and eq. (6) is back-propagated through the reference,
+the positive and that negative (one positive and one negative per reference: 50 : 50).
+Adam, lr 1e-4 × 0.1 every 8 epochs, 25 epochs, batch 8 (the paper's defaults).
+
+Validation each epoch (``val_cache``), in every sample and every contiguous camera pair (A, B):
+
+- distances: every detection of A with an instance against every one of B with an instance;
+  positive when the instance is the same. Their distributions and the ROC AUC (positives
+  nearer than negatives) are reported.
+- matching, as inference will do it (paper §III-B): the candidates are the detections of A
+  and of B in the pair's overlap (``overlap_pairs``); an optimal assignment
+  (``scipy.optimize.linear_sum_assignment``) on their distances, pairs above ``dis_thr``
+  dismissed; a match is right when both detections have the same instance. Precision,
+  recall and F1 against the ground-truth pairs among the candidates, at the ``dis_thr``
+  that maximises F1 on the validation cache: stored in the checkpoint for ``eval``.
+- the same figures for a plain baseline: nearest neighbour on mean-pooled ROI features
+  (Euclidean distance of the C-vectors), its own best threshold.
+
+Scale: the caches stream scene by scene (:mod:`sianms_cli.data.siamese`); under
+``torchrun --nproc-per-node K -m sianms_cli train siamese ...`` every rank draws the same
+global batches and trains on its share with DistributedDataParallel (the loss scaled so the
+gradient is that of one process), and rank 0 validates and writes the run folder.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import torch
+from scipy.optimize import linear_sum_assignment
+from scipy.stats import rankdata
+
+from sianms_cli.data.siamese import PairingBatch, Scene, cache_feature_shape, epoch_batches, hardest_candidates, \
+    iter_scenes
+from sianms_cli.errors import SianmsError
+from sianms_cli.io import make_folder, write_json, write_text
+from sianms_cli.models.losses import double_margin_loss, pair_distances, positive_terms
+from sianms_cli.models.siamese import SiameseEncoder, parameter_count
+from sianms_cli.progress import SILENT, Progress
+from sianms_cli.training.run import Checkpoint, RunFolder, choose_device, epoch_generator, init_distributed, \
+    load_state, plain, seed_everything, set_learning_rate, step_decay
+
+KIND = "siamese"
+THRESHOLD_STEPS = 64  # dis_thr candidates: quantiles of the validation candidates' distances
+EMBED_CHUNK = 512  # detections embedded per forward pass at validation
+CURVES = (  # curves.png panels: (title, metrics.csv columns drawn together)
+    ("loss per reference, eq. (6)", ("train_loss", "train_positive_loss", "train_negative_loss")),
+    ("val ROC AUC", ("val_auc", "baseline_auc")),
+    ("val matching F1 at best dis_thr", ("val_f1", "baseline_f1")),
+    ("val distances (learned)", ("val_positive_distance_p50", "val_negative_distance_p50", "val_dis_thr")),
+    ("val precision / recall", ("val_precision", "val_recall")),
+    ("learning rate", ("lr",)),
+)
+
+
+@dataclass(frozen=True)
+class SiameseConfig:
+    """What `sianms train siamese` trains; defaults are the paper's (§IV-A, §IV-C)."""
+
+    cache: str
+    val_cache: str | None = None
+    dim: int = 100
+    conv_channels: tuple[int, ...] = (128, 128)
+    hidden: tuple[int, ...] = (256,)
+    alpha: float = 1.0
+    beta: float = 3.0
+    lr: float = 1e-4
+    lr_decay: float = 0.1
+    lr_step: int = 8
+    epochs: int = 25
+    batch_size: int = 8
+    seed: int = 0
+    device: str = "auto"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "conv_channels", tuple(int(v) for v in self.conv_channels))
+        object.__setattr__(self, "hidden", tuple(int(v) for v in self.hidden))
+        checks = [
+            (self.dim >= 1, f"--dim must be at least 1, got {self.dim}"),
+            (len(self.conv_channels) == 2 and min(self.conv_channels) >= 1,
+             f"--conv-channels must be two positive widths (Fig. 4: two conv groups), got {self.conv_channels}"),
+            (all(width >= 1 for width in self.hidden), f"--hidden widths must be positive, got {self.hidden}"),
+            (0 <= self.alpha < self.beta and math.isfinite(self.beta),
+             f"--alpha and --beta need 0 <= alpha < beta, got {self.alpha}, {self.beta}"),
+            (self.lr > 0 and math.isfinite(self.lr), f"--lr must be positive, got {self.lr}"),
+            (0 < self.lr_decay <= 1, f"--lr-decay must be in (0, 1], got {self.lr_decay}"),
+            (self.lr_step >= 1, f"--lr-step must be at least 1, got {self.lr_step}"),
+            (self.epochs >= 1, f"--epochs must be at least 1, got {self.epochs}"),
+            (self.batch_size >= 1, f"--batch-size must be at least 1, got {self.batch_size}"),
+            (self.seed >= 0, f"--seed must be at least 0, got {self.seed}"),
+        ]
+        for ok, message in checks:
+            if not ok:
+                raise SianmsError(message)
+
+    def resolved(self) -> dict[str, Any]:
+        """The config as plain types, paths absolute (config.json and the checkpoint)."""
+        data = plain(asdict(self))
+        data["cache"] = str(Path(self.cache).resolve())
+        data["val_cache"] = None if self.val_cache is None else str(Path(self.val_cache).resolve())
+        return data
+
+
+def build_model(config: SiameseConfig | dict[str, Any], feature_shape: tuple[int, int, int]) -> SiameseEncoder:
+    """The encoder a config describes (from a checkpoint's config dict too)."""
+    get = config.get if isinstance(config, dict) else lambda key: getattr(config, key)
+    return SiameseEncoder(feature_shape, dim=get("dim"), conv_channels=tuple(get("conv_channels")),
+                          hidden=tuple(get("hidden")))
+
+
+# --------------------------------------------------------------------------- training
+
+
+def _tensor(features: np.ndarray, device: torch.device) -> torch.Tensor:
+    return torch.from_numpy(features.astype(np.float32)).to(device)
+
+
+def train_step(model: torch.nn.Module, optimizer: torch.optim.Optimizer, batch: PairingBatch,
+               config: SiameseConfig, device: torch.device, world: int = 1) -> dict[str, float]:
+    """One step of §IV-B on a batch (this rank's share of it); the summed terms and the mining counts.
+
+    The candidates are scored with the current weights without gradients (no layer behaves
+    differently in training, so the scores equal the training forward's), then only the
+    chosen negative joins the backward pass. Under DistributedDataParallel (``world`` > 1)
+    the loss is scaled by ``world`` so the averaged gradient is that of eq. (6)'s sum over
+    the global batch, as in one process; a rank whose share is empty still joins the
+    gradient exchange with a zero loss.
+    """
+    model.train()
+    encoder = model.module if world > 1 else model
+    k = len(batch)
+    reference, positive = _tensor(batch.reference, device), _tensor(batch.positive, device)
+    if k:
+        items = torch.from_numpy(batch.candidate_item).to(device)
+        with torch.no_grad():
+            distances = pair_distances(encoder(reference)[items], encoder(_tensor(batch.candidates, device)))
+        chosen = hardest_candidates(distances.cpu().numpy(), batch.candidate_item, k)
+        negative = _tensor(batch.candidates[chosen], device)
+    else:
+        negative = reference
+    embedded = model(torch.cat([reference, positive, negative]))
+    loss = double_margin_loss(embedded[:k], embedded[k:2 * k], embedded[2 * k:], config.alpha, config.beta)
+    optimizer.zero_grad(set_to_none=True)
+    (loss * world).backward()
+    optimizer.step()
+    with torch.no_grad():
+        positive_sum = positive_terms(pair_distances(embedded[:k], embedded[k:2 * k]), config.alpha).sum().item()
+    return {"loss": loss.item(), "positive": positive_sum, "negative": loss.item() - positive_sum,
+            "items": k, "fallback": int(batch.fallback.sum()), "candidates": len(batch.candidate_item)}
+
+
+def rank_share(size: int, rank: int, world: int) -> tuple[int, int]:
+    """[start, stop) of rank ``rank``'s items in a global batch of ``size`` (contiguous, sizes differ by <= 1)."""
+    return size * rank // world, size * (rank + 1) // world
+
+
+def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config: SiameseConfig,
+                device: torch.device, epoch: int, rank: int = 0, world: int = 1) -> dict[str, float]:
+    """One epoch over the training cache; the mean per reference of eq. (6) and its two terms.
+
+    Every rank draws the same global batches (the epoch's generator does not depend on the
+    rank) and trains on its share of each, so K processes with batch N compute what one
+    process with batch N computes.
+    """
+    names = ("loss", "positive", "negative", "items", "fallback", "candidates")
+    totals = dict.fromkeys(names, 0.0)
+    for batch in epoch_batches(config.cache, config.batch_size, epoch_generator(config.seed, epoch)):
+        share = batch.take(*rank_share(len(batch), rank, world)) if world > 1 else batch
+        for key, value in train_step(model, optimizer, share, config, device, world).items():
+            totals[key] += value
+    if world > 1:
+        summed = torch.tensor([totals[name] for name in names], dtype=torch.float64)
+        torch.distributed.all_reduce(summed)
+        totals = dict(zip(names, summed.tolist()))
+    if totals["items"] == 0:
+        raise SianmsError(f"{config.cache}: no reference instance with a positive and a negative "
+                          "(the cache has no cross-camera pairs with another instance in the contiguous camera)")
+    n = totals["items"]
+    return {"train_loss": totals["loss"] / n, "train_positive_loss": totals["positive"] / n,
+            "train_negative_loss": totals["negative"] / n, "train_references": int(n),
+            "train_candidates_per_negative": totals["candidates"] / n, "negative_fallback": totals["fallback"] / n}
+
+
+# --------------------------------------------------------------------------- validation
+
+
+@dataclass
+class PairGroup:
+    """One sample's contiguous pair (A, B): distances and same-instance truth.
+
+    ``all_*``: detections with an instance, every A × B (distance figures);
+    ``match_*``: the overlap candidates of A × B, every detection (matching figures).
+    """
+
+    all_distance: np.ndarray
+    all_same: np.ndarray
+    match_distance: np.ndarray
+    match_same: np.ndarray
+
+
+def scene_groups(scene: Scene, embedding: np.ndarray) -> list[PairGroup]:
+    """The :class:`PairGroup` of every sample × contiguous pair of a scene, from its embeddings (N, d)."""
+    groups = []
+    for pair, in_overlap in scene.overlap.items():
+        camera_a, camera_b = pair.split("|")
+        for sample in np.unique(scene.sample):
+            here = scene.sample == sample
+            a, b = here & (scene.camera == camera_a), here & (scene.camera == camera_b)
+            if not (a.any() and b.any()):
+                continue
+            labelled = scene.instance >= 0
+            labelled_a, labelled_b = np.flatnonzero(a & labelled), np.flatnonzero(b & labelled)
+            match_a, match_b = np.flatnonzero(a & in_overlap), np.flatnonzero(b & in_overlap)
+            groups.append(PairGroup(*_cross(scene, embedding, labelled_a, labelled_b),
+                                    *_cross(scene, embedding, match_a, match_b)))
+    return groups
+
+
+def _cross(scene: Scene, embedding: np.ndarray, rows_a: np.ndarray, rows_b: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """(len(a), len(b)) distances and same-instance (both labelled) matrices."""
+    distance = np.linalg.norm(embedding[rows_a, None, :] - embedding[None, rows_b, :], axis=-1)
+    ia, ib = scene.instance[rows_a], scene.instance[rows_b]
+    return distance, (ia[:, None] == ib[None, :]) & (ia[:, None] >= 0)
+
+
+def roc_auc(positive: np.ndarray, negative: np.ndarray) -> float:
+    """P(a positive is nearer than a negative), ties count ½ (Mann–Whitney); NaN without both kinds."""
+    if len(positive) == 0 or len(negative) == 0:
+        return float("nan")
+    ranks = rankdata(np.concatenate([-positive, -negative]))
+    return float((ranks[:len(positive)].sum() - len(positive) * (len(positive) + 1) / 2)
+                 / (len(positive) * len(negative)))
+
+
+def match_counts(distance: np.ndarray, same: np.ndarray, threshold: float) -> tuple[int, int]:
+    """(matches kept, right matches) of the optimal assignment under ``threshold``.
+
+    Costs above the threshold are clipped to threshold + 1e-5 before solving and the pairs
+    assigned at such a cost dropped (DeepSORT's ``min_cost_matching``), so the assignment
+    never fails and never prefers a forbidden pair.
+    """
+    if distance.size == 0:
+        return 0, 0
+    rows, cols = linear_sum_assignment(np.minimum(distance, threshold + 1e-5))
+    keep = distance[rows, cols] <= threshold
+    return int(keep.sum()), int(same[rows[keep], cols[keep]].sum())
+
+
+def matching_scores(groups: list[PairGroup], threshold: float) -> dict[str, float]:
+    """Precision, recall and F1 of the matching at ``threshold`` over all groups."""
+    kept = right = 0
+    for group in groups:
+        k, r = match_counts(group.match_distance, group.match_same, threshold)
+        kept, right = kept + k, right + r
+    truth = sum(int(group.match_same.sum()) for group in groups)
+    precision = right / kept if kept else float("nan")
+    recall = right / truth if truth else float("nan")
+    f1 = 2 * right / (kept + truth) if kept + truth else float("nan")
+    return {"precision": precision, "recall": recall, "f1": f1}
+
+
+def best_threshold(groups: list[PairGroup], default: float) -> tuple[float, dict[str, float]]:
+    """The ``dis_thr`` that maximises the matching F1 (the smallest on ties) and its scores.
+
+    Candidates: ``default`` and quantiles of every candidate distance. Without a single
+    ground-truth pair among the candidates F1 is undefined and ``default`` is kept.
+    """
+    distances = np.concatenate([g.match_distance.ravel() for g in groups] + [np.zeros(0)])
+    quantiles = np.quantile(distances, np.linspace(0, 1, THRESHOLD_STEPS)) if len(distances) else np.zeros(0)
+    candidates = np.unique(np.concatenate([[default], quantiles]))
+    best = (default, matching_scores(groups, default))
+    for threshold in candidates:
+        scores = matching_scores(groups, float(threshold))
+        if not math.isnan(scores["f1"]) and (math.isnan(best[1]["f1"]) or scores["f1"] > best[1]["f1"]
+                                             or (scores["f1"] == best[1]["f1"] and threshold < best[0])):
+            best = (float(threshold), scores)
+    return best
+
+
+def summarize(groups: list[PairGroup], default_threshold: float, prefix: str) -> dict[str, float]:
+    """Distance distributions, ROC AUC and the matching at the best ``dis_thr``, keys prefixed."""
+    distances = np.concatenate([g.all_distance.ravel() for g in groups] + [np.zeros(0)])
+    same = np.concatenate([g.all_same.ravel() for g in groups] + [np.zeros(0, dtype=bool)])
+    positive, negative = distances[same], distances[~same]
+    threshold, scores = best_threshold(groups, default_threshold)
+    figures = {"auc": roc_auc(positive, negative), "positives": len(positive), "negatives": len(negative)}
+    for name, values in (("positive", positive), ("negative", negative)):
+        figures[f"{name}_distance_mean"] = float(values.mean()) if len(values) else float("nan")
+        for q in (10, 50, 90):
+            figures[f"{name}_distance_p{q}"] = float(np.percentile(values, q)) if len(values) else float("nan")
+    figures |= {"dis_thr": threshold, **scores,
+                "match_pairs": sum(int(g.match_same.sum()) for g in groups)}
+    return {f"{prefix}_{key}": value for key, value in figures.items()}
+
+
+@torch.no_grad()
+def embed_scene(model: SiameseEncoder, scene: Scene, device: torch.device) -> np.ndarray:
+    """(N, d) float64 embeddings of a scene's detections, in chunks."""
+    model.eval()
+    parts = [model(_tensor(scene.features[start:start + EMBED_CHUNK], device)).double().cpu().numpy()
+             for start in range(0, len(scene), EMBED_CHUNK)]
+    return np.concatenate(parts) if parts else np.zeros((0, model.dim))
+
+
+def validate(model: SiameseEncoder, config: SiameseConfig, device: torch.device) -> dict[str, float]:
+    """The learned embedding's validation figures (``val_*``), scene by scene."""
+    groups = []
+    for scene in iter_scenes(config.val_cache):
+        groups += scene_groups(scene, embed_scene(model, scene, device))
+    return summarize(groups, (config.alpha + config.beta) / 2, "val")
+
+
+def baseline(cache: str) -> dict[str, float]:
+    """The same figures (``baseline_*``) for mean-pooled ROI features and nearest neighbours."""
+    groups = []
+    for scene in iter_scenes(cache):
+        pooled = scene.features.astype(np.float64).mean(axis=(2, 3))
+        groups += scene_groups(scene, pooled)
+    distances = np.concatenate([g.all_distance.ravel() for g in groups] + [np.zeros(1)])
+    return summarize(groups, float(np.median(distances)), "baseline")
+
+
+# --------------------------------------------------------------------------- the run
+
+
+@dataclass
+class SiameseResult:
+    """What a run did: where, which epochs, the last epoch's figures, the chosen ``dis_thr``."""
+
+    out: Path
+    epochs_run: list[int]
+    resumed_from: int
+    metrics: dict[str, Any]
+    baseline: dict[str, float]
+    dis_thr: float
+    parameters: int
+    history: list[dict[str, Any]] = field(default_factory=list)
+
+
+def run(config: SiameseConfig, out: str | Path, *, overwrite: bool = False, resume: bool = False,
+        progress: Progress = SILENT, on_epoch: Callable[[dict[str, Any]], None] | None = None) -> SiameseResult:
+    """Train the siamese network of ``config`` into the run folder ``out``.
+
+    Args:
+        config: what to train.
+        out: run folder (see :mod:`sianms_cli.training.run`).
+        overwrite: replace a run already at ``out``.
+        resume: continue the run at ``out`` from its last checkpoint (same config; ``epochs``
+            and ``device`` may differ); ends bit-for-bit where an uninterrupted run ends on a CPU.
+        progress: told the epochs to run, then each one done.
+        on_epoch: called with each finished epoch's metrics row (the CLI prints it).
+    """
+    feature_shape = cache_feature_shape(config.cache)
+    if config.val_cache is not None and cache_feature_shape(config.val_cache) != feature_shape:
+        raise SianmsError(f"--val-cache holds ROI features of shape {cache_feature_shape(config.val_cache)}, "
+                          f"--cache {feature_shape}: prepare both with the same backbone and --roi-size")
+    rank, world, device = init_distributed(choose_device(config.device))
+    resolved = config.resolved() | {"feature_shape": list(feature_shape)}
+    folder = RunFolder.open(out, kind=KIND, config=resolved, overwrite=overwrite, resume=resume,
+                            may_differ=("epochs", "device"), write=rank == 0)
+    folder.panels = CURVES
+    validating = config.val_cache is not None and rank == 0
+    with folder:
+        seed_everything(config.seed)
+        model = build_model(config, feature_shape).to(device)
+        optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+        history: list[dict[str, Any]] = []
+        start = 0
+        if folder.resumed is not None:
+            load_state(model, folder.resumed.model, folder.checkpoint_path)
+            optimizer.load_state_dict(folder.resumed.optimizer)
+            history, start = list(folder.resumed.history), folder.resumed.epoch
+        trained = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
+        reference = baseline(config.val_cache) if validating else {}
+        dis_thr = (config.alpha + config.beta) / 2
+        if history and "val_dis_thr" in history[-1]:
+            dis_thr = history[-1]["val_dis_thr"]
+        progress.start(max(0, config.epochs - start), "epoch", "train siamese")
+        epochs_run = []
+        for epoch in range(start, config.epochs):
+            began = time.perf_counter()
+            lr = step_decay(config.lr, config.lr_decay, config.lr_step, epoch)
+            set_learning_rate(optimizer, lr)
+            row: dict[str, Any] = {"epoch": epoch + 1, "lr": lr,
+                                   **train_epoch(trained, optimizer, config, device, epoch, rank, world)}
+            if validating:
+                row |= validate(model, config, device) | reference
+                dis_thr = row["val_dis_thr"]
+            row["seconds"] = time.perf_counter() - began
+            history.append(row)
+            folder.save(Checkpoint(kind=KIND, config=resolved, epoch=epoch + 1, model=model.state_dict(),
+                                   optimizer=optimizer.state_dict(), history=history,
+                                   extra={"dis_thr": dis_thr, "feature_shape": list(feature_shape),
+                                          "baseline": reference}), curves=epoch + 1 == config.epochs)
+            epochs_run.append(epoch + 1)
+            if on_epoch is not None and rank == 0:
+                on_epoch(row)
+            progress.advance()
+    return SiameseResult(out=Path(out), epochs_run=epochs_run, resumed_from=start,
+                         metrics=history[-1] if history else {}, baseline=reference, dis_thr=dis_thr,
+                         parameters=parameter_count(model), history=history)
+
+
+# --------------------------------------------------------------------------- the paper's ablation over d
+
+
+SWEEP_COLUMNS = ("dim", "parameters", "val_auc", "val_f1", "val_dis_thr", "baseline_auc", "baseline_f1", "seconds")
+
+
+def parse_dims(text: str) -> tuple[int, ...]:
+    """'5,10,20' -> (5, 10, 20): positive, distinct; a malformed list names ``--sweep-dims``."""
+    try:
+        dims = tuple(int(part) for part in text.split(",") if part.strip())
+    except ValueError:
+        raise SianmsError(f"--sweep-dims must be comma-separated integers, got '{text}'") from None
+    if not dims or min(dims) < 1 or len(set(dims)) != len(dims):
+        raise SianmsError(f"--sweep-dims must list distinct positive sizes, got '{text}'")
+    return dims
+
+
+def sweep(config: SiameseConfig, dims: tuple[int, ...], out: str | Path, *, overwrite: bool = False,
+          resume: bool = False, progress: Progress = SILENT,
+          on_epoch: Callable[[dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
+    """Train one model per embedding size (paper §IV-C: d = 5 … 1000) into ``out/d<d>/``.
+
+    Each is an ordinary run folder (resumable on its own); ``out/sweep.json`` and
+    ``out/sweep.md`` tabulate d, parameters, the last epoch's validation AUC and matching F1,
+    and the wall time, and are rewritten after each d so an interrupted sweep keeps its rows.
+    """
+    out = make_folder(out)
+    rows = []
+    for dim in dims:
+        began = time.perf_counter()
+        result = run(replace(config, dim=dim), out / f"d{dim}", overwrite=overwrite, resume=resume,
+                     progress=progress, on_epoch=on_epoch)
+        metrics = result.metrics
+        figures = {key: metrics.get(key) for key in SWEEP_COLUMNS if key.startswith(("val_", "baseline_"))}
+        rows.append({"dim": dim, "parameters": result.parameters, "seconds": time.perf_counter() - began,
+                     **{key: None if isinstance(v, float) and math.isnan(v) else v for key, v in figures.items()}})
+        write_json(out / "sweep.json", {"config": config.resolved(), "rows": rows})
+        write_text(out / "sweep.md", sweep_markdown(rows))
+    return rows
+
+
+def sweep_markdown(rows: list[dict[str, Any]]) -> str:
+    """The sweep as a markdown table, one row per d."""
+    def cell(value: Any) -> str:
+        if value is None or (isinstance(value, float) and math.isnan(value)):
+            return "n/a"
+        return f"{value:,}" if isinstance(value, int) else f"{value:.3f}"
+
+    lines = ["| " + " | ".join(SWEEP_COLUMNS) + " |", "|" + "---|" * len(SWEEP_COLUMNS)]
+    lines += ["| " + " | ".join(cell(row.get(key)) for key in SWEEP_COLUMNS) + " |" for row in rows]
+    return "\n".join(lines) + "\n"

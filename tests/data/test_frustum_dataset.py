@@ -1,0 +1,139 @@
+"""data/frustum_dataset.py on a hand-made cache: filters, the (w, l, h) -> (l, w, h) conversion,
+sampling within each frustum, streaming, and augmentation that keeps points and boxes consistent."""
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from sianms_cli.data.frustum_dataset import (
+    Augmentation,
+    FrustumSelection,
+    augment,
+    class_statistics,
+    iterate_batches,
+    read_shard,
+    sample_points,
+)
+from sianms_cli.data.schemas import FRUSTUMS_SCHEMA
+
+
+def inside_box(points, center, lwh, heading):
+    """(B, N) bool: F-PointNets convention (length axis (cos h, 0, -sin h), height along y)."""
+    offset = points[..., :3] - center[:, None, :]
+    c, s = np.cos(heading)[:, None], np.sin(heading)[:, None]
+    along = offset[..., 0] * c - offset[..., 2] * s
+    across = offset[..., 0] * s + offset[..., 2] * c
+    return ((np.abs(along) <= lwh[:, None, 0] / 2) & (np.abs(across) <= lwh[:, None, 1] / 2)
+            & (np.abs(offset[..., 1]) <= lwh[:, None, 2] / 2))
+
+
+def frustum_row(rng, ident, cls, wlh, height_px, box=True, points=40, object_fraction=0.5, tag=0.0):
+    """One frustum row: points spread around a box at 15 m, labelled by the box; intensity = tag."""
+    center = np.array([rng.uniform(-1, 1), 0.5, 15.0])
+    heading = rng.uniform(-np.pi, np.pi)
+    lwh = np.array([wlh[1], wlh[0], wlh[2]])
+    near = int(points * object_fraction)
+    xyz = np.concatenate([center + rng.uniform(-0.3, 0.3, (near, 3)) * lwh,
+                          center + rng.uniform(3, 6, (points - near, 3))])
+    labels = inside_box(xyz[None], center[None], lwh[None], np.array([heading]))[0]
+    row = {"detection_id": ident, "scene_token": "s", "sample_token": "t", "sample_data_token": "d",
+           "camera": "CAM_FRONT", "class": cls, "score": 0.9, "source": "detector", "instance_token": "i",
+           "rot_angle": 0.1, "num_points": points, "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2],
+           "intensity": np.full(points, tag), "time_lag": np.zeros(points), "label": labels.astype(np.int8),
+           "box_center_cam": None, "box_size": list(wlh), "box_rotation_cam": None, "box_heading_cam": heading + 0.1,
+           "box_center_frustum": list(center), "box_heading_frustum": heading}
+    if not box:
+        row.update(box_size=None, box_center_frustum=None, box_heading_frustum=None, instance_token=None)
+    return row, {"detection_id": ident, "y1": 10.0, "y2": 10.0 + height_px}
+
+
+def write_cache(root, shards):
+    (root / "frustums").mkdir(parents=True)
+    (root / "detections").mkdir()
+    for name, rows in shards.items():
+        frustums = [r for r, _ in rows]
+        columns = {f.name: [r[f.name] for r in frustums] for f in FRUSTUMS_SCHEMA}
+        pq.write_table(pa.table(columns, schema=FRUSTUMS_SCHEMA), root / "frustums" / f"{name}.parquet")
+        pq.write_table(pa.Table.from_pylist([d for _, d in rows]), root / "detections" / f"{name}.parquet")
+    return root
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    rng = np.random.default_rng(0)
+    first = [
+        frustum_row(rng, "a", "car", (2.0, 5.0, 1.5), 30, tag=25.5),  # kept
+        frustum_row(rng, "b", "car", (1.8, 4.0, 1.6), 10, tag=51.0),  # too low for 25 px
+        frustum_row(rng, "c", "pedestrian", (0.6, 0.7, 1.8), 40, box=False),  # no box
+        frustum_row(rng, "d", "truck", (2.5, 9.0, 3.0), 60),  # class not asked for
+        frustum_row(rng, "e", "bicycle", (0.6, 1.7, 1.3), 40, object_fraction=0.0),  # no object point
+        frustum_row(rng, "f", "pedestrian", (0.6, 0.8, 1.7), 50, points=7, tag=76.5),  # kept
+    ]
+    second = [frustum_row(rng, f"g{i}", ("car", "pedestrian")[i % 2], (1.9, 4.5, 1.6), 80, points=20 + i,
+                          tag=float(100 + i)) for i in range(9)]
+    return write_cache(tmp_path_factory.mktemp("cache"), {"scene-1": first, "scene-2": second})
+
+
+def test_filters_and_the_one_size_conversion(cache):
+    shard = read_shard(cache / "frustums" / "scene-1.parquet", FrustumSelection(min_box_height=25))
+    assert shard.detection_id.tolist() == ["a", "f"]
+    assert shard.lwh[0].tolist() == [5.0, 2.0, 1.5]  # (w, l, h) in the cache -> (l, w, h)
+    assert shard.class_index.tolist() == [0, 1]
+    assert shard.points.shape == (47, 4)
+    assert np.allclose(shard.points[:40, 3], 0.1) and np.allclose(shard.points[40:, 3], 0.3)  # intensity / 255
+    loose = read_shard(cache / "frustums" / "scene-1.parquet", FrustumSelection(min_box_height=0, intensity=False))
+    assert loose.detection_id.tolist() == ["a", "b", "f"] and loose.points.shape[1] == 3
+    with_truck = read_shard(cache / "frustums" / "scene-1.parquet",
+                            FrustumSelection(classes=("car", "truck"), min_box_height=0))
+    assert with_truck.detection_id.tolist() == ["a", "b", "d"]
+
+
+def test_class_statistics_stream_every_shard(cache):
+    counts, means = class_statistics(cache, FrustumSelection(min_box_height=25))
+    assert counts.tolist() == [1 + 5, 1 + 4, 0]
+    assert means[0] == pytest.approx([(5.0 + 5 * 4.5) / 6, (2.0 + 5 * 1.9) / 6, (1.5 + 5 * 1.6) / 6])
+    assert np.isnan(means[2]).all()
+
+
+def test_points_are_drawn_from_their_own_frustum_with_their_labels(cache):
+    shard = read_shard(cache / "frustums" / "scene-2.parquet", FrustumSelection())
+    rows = np.array([3, 0, 8])
+    points, seg = sample_points(shard, rows, 50, np.random.default_rng(1))
+    assert points.shape == (3, 50, 4) and seg.shape == (3, 50)
+    assert np.allclose(points[..., 3], (100 + rows)[:, None] / 255)  # the intensity tags each frustum
+    assert (seg == inside_box(points, shard.center[rows], shard.lwh[rows], shard.heading[rows])).all()
+
+
+def test_evaluation_streams_every_kept_frustum_once_in_order(cache):
+    selection = FrustumSelection(num_points=16)
+    batches = list(iterate_batches(cache, selection, 4, np.random.default_rng(0), train=False))
+    assert [len(b["center"]) for b in batches] == [4, 4, 3]
+    ids = np.concatenate([b["detection_id"] for b in batches]).tolist()
+    assert ids == ["a", "f"] + [f"g{i}" for i in range(9)]
+
+
+def test_training_order_is_seeded_and_drops_only_a_lone_last_frustum(cache):
+    selection = FrustumSelection(num_points=16)
+    first = list(iterate_batches(cache, selection, 5, np.random.default_rng(3), train=True))
+    again = list(iterate_batches(cache, selection, 5, np.random.default_rng(3), train=True))
+    assert [len(b["center"]) for b in first] == [5, 5]  # 11 frustums: the 11th alone is dropped
+    for a, b in zip(first, again):
+        assert (a["detection_id"] == b["detection_id"]).all() and np.array_equal(a["points"], b["points"])
+
+
+def test_augmentation_keeps_points_and_boxes_consistent(cache):
+    shard = read_shard(cache / "frustums" / "scene-2.parquet", FrustumSelection())
+    rows = np.arange(len(shard))
+    points, seg = sample_points(shard, rows, 64, np.random.default_rng(2))
+    batch = {"points": points, "seg": seg, "center": shard.center.copy(), "heading": shard.heading.copy(),
+             "lwh": shard.lwh}
+    before = {key: value.copy() for key, value in batch.items()}
+    augment(batch, np.random.default_rng(5), Augmentation())
+    assert not np.allclose(batch["points"], before["points"])
+    assert (inside_box(batch["points"], batch["center"], batch["lwh"], batch["heading"]) == seg).all()
+    flipped = np.sign(batch["center"][:, 0]) != np.sign(before["center"][:, 0])
+    assert flipped.any() and (~flipped).any()  # p = 0.5 over 9 frustums
+    untouched = dict(before)
+    augment(untouched, np.random.default_rng(5), Augmentation(flip=False, shift=False, jitter=False))
+    assert np.array_equal(untouched["points"], before["points"])

@@ -1,0 +1,87 @@
+import numpy as np
+import pytest
+
+from sianms_cli.synth.manoeuvres import CLEARANCE, _closest_approach
+from sianms_cli.synth.world import SCENE_SECONDS, lateral_offset, plan_scene
+
+VARIED = (0, 1, 2, 3, 16, 36, 38)  # ego lane changes (0, 2), lane changes, a pull-out (16), a pull-in (1)
+
+
+@pytest.fixture(scope="module")
+def plans():
+    return {seed: plan_scene(np.random.default_rng(seed), drive_side=+1 if seed % 2 else -1) for seed in VARIED}
+
+
+def _kinds(plan) -> list[str]:
+    """'lane', 'out' or 'in' for every agent with a manoeuvre."""
+    agents, parking_inner = plan.agents, plan.street.section.parking_inner
+    kinds = []
+    for i in np.flatnonzero(agents.shift[:, 0] != 0.0):
+        if not np.isfinite(agents.p_range[i]).any():
+            kinds.append("lane")
+        else:
+            kinds.append("out" if abs(agents.offset[i]) > parking_inner else "in")
+    return kinds
+
+
+def test_every_manoeuvre_appears(plans):
+    kinds = {kind for plan in plans.values() for kind in _kinds(plan)}
+    assert kinds == {"lane", "out", "in"}
+    assert plans[0].ego.shift[0] == pytest.approx(-3.5) and plans[2].ego.shift[0] == pytest.approx(-3.5)
+
+
+def test_lateral_offset_is_a_smoothstep_with_zero_sideways_speed_at_its_ends():
+    offset = np.array([1.75, 1.75])
+    shift = np.array([[3.5, 2.0, 4.0], [0.0, 0.0, 1.0]])
+    for t, expected in ((0.0, 1.75), (2.0, 1.75), (4.0, 3.5), (6.0, 5.25), (9.0, 5.25)):
+        d, rate = lateral_offset(offset, shift, t)
+        assert d[0] == pytest.approx(expected) and d[1] == 1.75
+    assert lateral_offset(offset, shift, 2.0)[1][0] == 0.0 and lateral_offset(offset, shift, 6.0)[1][0] == 0.0
+    assert lateral_offset(offset, shift, 4.0)[1][0] == pytest.approx(3.5 * 1.5 / 4.0)  # peak rate 1.5 d / T
+
+
+def test_manoeuvring_tracks_have_consistent_speed_and_heading(plans):
+    """Finite differences of positions give the stated speed, and a moving vehicle points
+    where it goes (against its path for oncoming traffic, whose path runs backwards)."""
+    dt = 1e-3
+    for plan in plans.values():
+        moving = np.flatnonzero(plan.agents.shift[:, 0] != 0.0)
+        for t in np.arange(0.0, SCENE_SECONDS, 0.25):
+            center, yaw, speed = plan.agents.pose(plan.route, t)
+            later, _, _ = plan.agents.pose(plan.route, t + dt)
+            step = later[moving, :2] - center[moving, :2]
+            np.testing.assert_allclose(np.hypot(*step.T) / dt, speed[moving], atol=2e-3)
+            going = speed[moving] > 0.5
+            motion = np.arctan2(step[going, 1], step[going, 0])
+            assert np.all(np.abs(np.angle(np.exp(1j * (motion - yaw[moving][going])))) < 0.01)
+
+
+def test_the_ego_heads_where_it_goes_and_ends_in_the_other_lane(plans):
+    dt = 1e-3
+    for seed in (0, 2):
+        plan = plans[seed]
+        times = np.arange(0.0, SCENE_SECONDS, 0.25)
+        xy, yaw = plan.ego.track(plan.route, times)
+        later, _ = plan.ego.track(plan.route, times + dt)
+        motion = np.arctan2(*(later - xy).T[::-1])
+        assert np.all(np.abs(np.angle(np.exp(1j * (motion - yaw)))) < 0.01)
+        _, d_end = plan.route.to_route_frame(xy[-1:])
+        assert d_end[0] == pytest.approx(plan.ego.offset + plan.ego.shift[0], abs=1e-6)
+
+
+def test_manoeuvres_keep_their_clearance_all_scene(plans):
+    times = np.arange(0.0, SCENE_SECONDS + 1e-9, 0.05)  # finer than the planner's 0.2 s check
+    for plan in plans.values():
+        rows = np.flatnonzero(plan.agents.shift[:, 0] != 0.0)
+        clearance = _closest_approach(plan.agents, plan.street, np.append(rows, len(plan.agents)), times, plan.ego)
+        assert clearance.min() > CLEARANCE - 0.3  # what 0.05 s can add between two 0.2 s checks
+
+
+def test_pulling_out_cars_are_stopped_until_they_go(plans):
+    plan = plans[16]
+    agents = plan.agents
+    out = np.flatnonzero((agents.shift[:, 0] != 0.0) & np.isfinite(agents.p_range).any(axis=1))
+    start = agents.shift[out, 1]
+    before = agents.attributes(agents.pose(plan.route, float(start[0]) - 0.5)[2])[out[0]]
+    after = agents.attributes(agents.pose(plan.route, float(start[0]) + 0.5)[2])[out[0]]
+    assert (before, after) == ("vehicle.stopped", "vehicle.moving")

@@ -1,0 +1,46 @@
+"""`sianms train fpointnet` through the CLI: files, --json, per-class lines, refusing, errors as one line."""
+
+import json
+
+from typer.testing import CliRunner
+
+from sianms_cli.cli import app
+
+SMALL = ["--num-points", "32", "--num-object-points", "16", "--batch-size", "8", "--min-box-height", "0",
+         "--device", "cpu", "--no-jitter"]
+
+
+def invoke(*arguments):
+    return CliRunner().invoke(app, ["train", "fpointnet", *arguments])
+
+
+def test_train_writes_the_run_and_prints_json(tiny_caches, tmp_path):
+    train, val = tiny_caches
+    out = tmp_path / "run"
+    done = invoke("--cache", str(train), "--val-cache", str(val), "--out", str(out), "--epochs", "1", "--quiet",
+                  "--json", *SMALL)
+    assert done.exit_code == 0, done.output
+    result = json.loads(done.stdout)
+    assert result["epochs_run"] == [1] and result["metrics"]["epoch"] == 1
+    assert {"val_iou_0.5", "val_iou_0.7", "val_car_center_error", "train_corner"} <= set(result["metrics"])
+    assert set(result["mean_sizes_lwh"]) == {"car", "pedestrian", "bicycle"}
+    config = json.loads((out / "config.json").read_text())
+    assert config["kind"] == "fpointnet" and config["num_points"] == 32 and config["jitter"] is False
+
+    again = invoke("--cache", str(train), "--out", str(out), "--quiet", *SMALL)
+    assert again.exit_code == 2 and again.stderr.startswith("error: ") and "--resume" in again.stderr
+
+    resumed = invoke("--cache", str(train), "--val-cache", str(val), "--out", str(out), "--epochs", "2", "--quiet",
+                     "--resume", *SMALL)
+    assert resumed.exit_code == 0, resumed.output
+    assert "trained epochs 2-2" in resumed.stdout and "  car (" in resumed.stdout
+
+
+def test_a_cache_without_frustums_of_the_classes_is_one_error_line(tiny_caches, tmp_path):
+    done = invoke("--cache", str(tiny_caches[0]), "--out", str(tmp_path / "run"), "--classes", "truck", *SMALL)
+    assert done.exit_code == 2 and done.stderr.startswith("error: ") and "truck" in done.stderr
+
+
+def test_a_missing_cache_is_one_error_line(tmp_path):
+    done = invoke("--cache", str(tmp_path / "nope"), "--out", str(tmp_path / "run"), *SMALL)
+    assert done.exit_code == 2 and done.stderr.startswith("error: ") and "frustums" in done.stderr

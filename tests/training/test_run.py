@@ -1,0 +1,133 @@
+"""The shared run folder: checkpoints (weights-only, clear errors), refusing, resuming, metrics, seeds."""
+
+import pickle
+
+import numpy as np
+import pytest
+import torch
+
+from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
+from sianms_cli.training.run import (
+    CHECKPOINT, CONFIG, CURVES, METRICS, Checkpoint, RunFolder, choose_device, epoch_generator, load_checkpoint,
+    load_state, metrics_csv, save_checkpoint, step_decay,
+)
+
+
+def small_checkpoint(kind="siamese", epoch=2):
+    torch.manual_seed(0)
+    net = torch.nn.Linear(3, 2)
+    optimizer = torch.optim.Adam(net.parameters())
+    net(torch.ones(1, 3)).sum().backward()
+    optimizer.step()
+    return net, Checkpoint(kind=kind, config={"dim": 2, "widths": [1, 2], "cache": None}, epoch=epoch,
+                           model=net.state_dict(), optimizer=optimizer.state_dict(),
+                           history=[{"epoch": 1, "loss": 0.5}], extra={"dis_thr": 1.25})
+
+
+def test_checkpoint_round_trip(tmp_path):
+    net, checkpoint = small_checkpoint()
+    save_checkpoint(tmp_path / CHECKPOINT, checkpoint)
+    loaded = load_checkpoint(tmp_path / CHECKPOINT, "siamese")
+    assert (loaded.kind, loaded.config, loaded.epoch, loaded.history, loaded.extra) == (
+        "siamese", checkpoint.config, 2, checkpoint.history, {"dis_thr": 1.25})
+    other = torch.nn.Linear(3, 2)
+    load_state(other, loaded.model, tmp_path / CHECKPOINT)
+    for key, value in net.state_dict().items():
+        assert torch.equal(other.state_dict()[key], value)
+    assert loaded.optimizer["state"][0]["exp_avg"].shape == (2, 3)
+
+
+def test_a_pickled_object_is_refused(tmp_path):
+    path = tmp_path / "evil.pt"
+    torch.save({"format": "sianms-checkpoint-1", "model": {}, "payload": ValueError("x")}, path)
+    with pytest.raises(DataFormatError, match="evil.pt: not a sianms checkpoint .weights-only load refused it"):
+        load_checkpoint(path)
+    path.write_bytes(pickle.dumps({"a": 1}) + b"junk")
+    with pytest.raises(DataFormatError, match="not a sianms checkpoint"):
+        load_checkpoint(path)
+
+
+def test_foreign_keys_and_kinds_are_refused(tmp_path):
+    _, checkpoint = small_checkpoint()
+    path = save_checkpoint(tmp_path / CHECKPOINT, checkpoint)
+    data = torch.load(path, weights_only=True)
+    torch.save({**data, "surprise": 1}, tmp_path / "foreign.pt")
+    with pytest.raises(DataFormatError, match=r"unexpected keys \['surprise'\]"):
+        load_checkpoint(tmp_path / "foreign.pt")
+    torch.save({"state_dict": {}}, tmp_path / "other.pt")
+    with pytest.raises(DataFormatError, match="no format"):
+        load_checkpoint(tmp_path / "other.pt")
+    with pytest.raises(DataFormatError, match="a 'siamese' checkpoint, expected 'fpointnet'"):
+        load_checkpoint(path, "fpointnet")
+    with pytest.raises(DataFormatError, match="file not found"):
+        load_checkpoint(tmp_path / "missing.pt")
+
+
+def test_weights_that_do_not_fit_name_the_key(tmp_path):
+    _, checkpoint = small_checkpoint()
+    with pytest.raises(DataFormatError, match=r"field 'model.weight': shape \(2, 3\), this model has \(4, 3\)"):
+        load_state(torch.nn.Linear(3, 4), checkpoint.model, tmp_path / "c.pt")
+    with pytest.raises(DataFormatError, match="field 'model.0.weight'"):
+        load_state(torch.nn.Sequential(torch.nn.Linear(3, 2)), checkpoint.model, tmp_path / "c.pt")
+
+
+def test_run_folder_refuses_resumes_and_overwrites(tmp_path):
+    out = tmp_path / "run"
+    config = {"dim": 2, "epochs": 3}
+    with RunFolder.open(out, kind="siamese", config=config) as run:
+        _, checkpoint = small_checkpoint()
+        checkpoint.config = config
+        run.save(checkpoint, curves=False)
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == [CHECKPOINT, CONFIG, METRICS]
+    with pytest.raises(OutputExistsError, match="--resume .* or --overwrite"):
+        RunFolder.open(out, kind="siamese", config=config)
+    resumed = RunFolder.open(out, kind="siamese", config={"dim": 2, "epochs": 5}, resume=True, may_differ=("epochs",))
+    assert resumed.resumed.epoch == 2
+    with pytest.raises(SianmsError, match="config differs in dim"):
+        RunFolder.open(out, kind="siamese", config={"dim": 3, "epochs": 3}, resume=True)
+    RunFolder.open(out, kind="siamese", config=config, overwrite=True)
+    assert not (out / CHECKPOINT).exists()
+    assert RunFolder.open(out, kind="siamese", config=config, resume=True).resumed is None  # nothing to resume
+
+
+def test_a_foreign_folder_or_file_is_refused(tmp_path):
+    (tmp_path / "theirs").mkdir()
+    (tmp_path / "theirs" / "notes.txt").write_text("x")
+    with pytest.raises(OutputExistsError, match="holds no sianms run"):
+        RunFolder.open(tmp_path / "theirs", kind="siamese", config={}, overwrite=True)
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(OutputExistsError, match="not a folder"):
+        RunFolder.open(tmp_path / "file", kind="siamese", config={})
+
+
+def test_a_second_writer_is_refused(tmp_path):
+    from sianms_cli.io import FolderBusyError
+
+    with RunFolder.open(tmp_path / "run", kind="siamese", config={}):
+        with pytest.raises(FolderBusyError):
+            RunFolder.open(tmp_path / "run", kind="siamese", config={}, resume=True).__enter__()
+
+
+def test_curves_and_metrics(tmp_path):
+    history = [{"epoch": 1, "loss": 1.5, "auc": float("nan")}, {"epoch": 2, "loss": 0.25, "auc": 0.75, "new": 3}]
+    assert metrics_csv(history) == "epoch,loss,auc,new\n1,1.5,,\n2,0.25,0.75,3\n"
+    run = RunFolder.open(tmp_path / "run", kind="siamese", config={})
+    run.panels = [("loss", ["loss"]), ("auc", ["auc", "missing"])]
+    with run:
+        _, checkpoint = small_checkpoint()
+        checkpoint.history = history
+        run.save(checkpoint)
+    assert (tmp_path / "run" / CURVES).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_schedule_seeds_and_device():
+    assert [step_decay(1e-4, 0.1, 8, e) for e in (0, 7, 8, 16)] == pytest.approx([1e-4, 1e-4, 1e-5, 1e-6])
+    assert np.array_equal(epoch_generator(3, 4).integers(0, 1000, 5), epoch_generator(3, 4).integers(0, 1000, 5))
+    assert not np.array_equal(epoch_generator(3, 4).integers(0, 1000, 5), epoch_generator(3, 5).integers(0, 1000, 5))
+    assert choose_device("cpu").type == "cpu"
+    assert choose_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
+    with pytest.raises(SianmsError, match="--device must be"):
+        choose_device("tpu")
+    if not torch.cuda.is_available():
+        with pytest.raises(SianmsError, match="CUDA is not available"):
+            choose_device("cuda")
