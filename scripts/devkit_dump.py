@@ -167,10 +167,13 @@ def lidar_point_counts(nusc: NuScenes) -> dict[str, Any]:
 
 
 def multisweep(nusc: NuScenes, samples: list[dict], nsweeps: int) -> list[dict]:
-    """The devkit's multi-sweep point cloud of each key frame's LIDAR_TOP, summarised."""
+    """The devkit's multi-sweep point cloud of each key frame's LIDAR_TOP, summarised (key
+    frames whose LiDAR file is absent, as in a tables-only dataset, are left out)."""
     facts = []
     for sample in samples:
         if LIDAR_CHANNEL not in sample["data"]:
+            continue
+        if not os.path.exists(nusc.get_sample_data_path(sample["data"][LIDAR_CHANNEL])):
             continue
         cloud, lags = LidarPointCloud.from_file_multisweep(nusc, sample, LIDAR_CHANNEL, LIDAR_CHANNEL,
                                                            nsweeps=nsweeps)

@@ -144,9 +144,11 @@ def test_devkit_points_in_box_equals_num_lidar_pts(facts: dict, db: NuScenesDB) 
 def test_devkit_scores_ground_truth_as_perfect(facts: dict) -> None:
     evaluation = facts["evaluation"]
     assert evaluation["split"] == SPLIT
-    for name in PAPER_CLASSES:
-        # An AP of 1 only means something if the class has boxes left after the devkit's filters.
-        assert evaluation["gt_boxes_per_class_evaluated"].get(name, 0) > 0, name
+    # An AP of 1 only means something for a class with boxes left after the devkit's filters;
+    # a two-scene world need not hold a bicycle, but always holds cars and pedestrians.
+    evaluated = [name for name in PAPER_CLASSES if evaluation["gt_boxes_per_class_evaluated"].get(name, 0) > 0]
+    assert {"car", "pedestrian"} <= set(evaluated)
+    for name in evaluated:
         assert evaluation["mean_dist_aps"][name] == pytest.approx(1.0, abs=1e-9), name
         for threshold, ap in evaluation["label_aps"][name].items():
             assert ap == pytest.approx(1.0, abs=1e-9), (name, threshold)

@@ -167,9 +167,10 @@ def test_the_official_devkit_loads_and_evaluates_the_written_dataset(tmp_path, t
     if not devkit_python.exists():
         pytest.skip("no devkit venv (scripts/devkit_venv.sh)")
     out = tmp_path / "dump.json"
-    subprocess.run([str(devkit_python), str(repo / "scripts" / "devkit_dump.py"),
-                    str(tiny_dataroot), VERSION, str(out), "--split", "mini_val"],
-                   check=True, capture_output=True, timeout=120)
+    done = subprocess.run([str(devkit_python), str(repo / "scripts" / "devkit_dump.py"),
+                           str(tiny_dataroot), VERSION, str(out), "--split", "mini_val"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-3000:]
     dump = json.loads(out.read_text())
     db = NuScenesDB(tiny_dataroot, VERSION)
     assert dump["table_counts"] == {name: len(db.table(name)) for name in TABLE_NAMES}
