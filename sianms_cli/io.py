@@ -26,7 +26,7 @@ from typing import IO, Any, Iterator
 
 import orjson
 
-from sianms_cli.errors import DataFormatError, SianmsError
+from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
 
 PARTIAL_SUFFIX = ".partial"
 
@@ -140,8 +140,6 @@ def write_json(path: str | Path, data: Any) -> Path:
 
 def check_writable_output(path: str | Path, *, overwrite: bool) -> Path:
     """Refuse an output file that is a folder, or that exists while ``overwrite`` is false."""
-    from sianms_cli.errors import OutputExistsError
-
     path = Path(path)
     if path.is_dir():
         raise OutputError(f"cannot write {path}: it is a folder")
@@ -242,6 +240,13 @@ class FolderBusyError(SianmsError):
     """Another process holds the lock this run needs."""
 
 
+def _open_lock_file(lock_path: Path) -> int:
+    """A descriptor of the lock file, created (umask permissions) with its folder if needed."""
+    make_folder(lock_path.parent)
+    with os_errors_as_output_errors(lock_path):
+        return os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o666)
+
+
 @contextmanager
 def exclusive_lock(lock_path: str | Path, *, what: str, blocking: bool = False) -> Iterator[None]:
     """Hold an advisory lock (``flock``) on ``lock_path`` for the block.
@@ -251,9 +256,7 @@ def exclusive_lock(lock_path: str | Path, *, what: str, blocking: bool = False) 
     :class:`FolderBusyError` naming ``what`` and the holder's pid.
     """
     lock_path = Path(lock_path)
-    make_folder(lock_path.parent)
-    with os_errors_as_output_errors(lock_path):
-        descriptor = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o666)
+    descriptor = _open_lock_file(lock_path)
     try:
         try:
             fcntl.flock(descriptor, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
@@ -274,10 +277,7 @@ def try_lock(lock_path: str | Path) -> int | None:
 
     Release with :func:`release_lock`. For work items several runs share (cache shards).
     """
-    lock_path = Path(lock_path)
-    make_folder(lock_path.parent)
-    with os_errors_as_output_errors(lock_path):
-        descriptor = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o666)
+    descriptor = _open_lock_file(Path(lock_path))
     try:
         fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:

@@ -12,15 +12,27 @@ from sianms_cli.errors import SianmsError
 from sianms_cli.io import describe_os_error
 from sianms_cli.processes import Terminated
 
-app = typer.Typer(
-    name="sianms",
-    help="Multi-camera 3D object detection research on nuScenes-format data.",
-    no_args_is_help=True,
-    add_completion=False,
-    context_settings={"help_option_names": ["-h", "--help"]},
-    pretty_exceptions_enable=False,
-    rich_markup_mode=None,
-)
+def _typer(name: str, help: str) -> typer.Typer:
+    """A command (group) with the project's settings: -h, plain click help, no tracebacks."""
+    return typer.Typer(
+        name=name,
+        help=help,
+        no_args_is_help=True,
+        add_completion=False,
+        context_settings={"help_option_names": ["-h", "--help"]},
+        pretty_exceptions_enable=False,
+        rich_markup_mode=None,
+    )
+
+
+app = _typer("sianms", "Multi-camera 3D object detection research on nuScenes-format data.")
+
+
+def command_group(name: str, help: str) -> typer.Typer:
+    """A group of subcommands, ``sianms NAME ...``; register its commands with ``command(name, group)``."""
+    group = _typer(name, help)
+    app.add_typer(group, name=name)
+    return group
 
 
 def _print_version(value: bool) -> None:

@@ -14,18 +14,30 @@ from typing import Any, Callable, Optional
 
 import typer
 
-from sianms_cli.cli._app import ProgressBar, app, command
+from sianms_cli.cli._app import ProgressBar, command, command_group
 
-train_app = typer.Typer(
-    name="train",
-    help="Train the paper's networks on a prepared cache (`sianms prepare`).",
-    no_args_is_help=True,
-    add_completion=False,
-    context_settings={"help_option_names": ["-h", "--help"]},
-    pretty_exceptions_enable=False,
-    rich_markup_mode=None,
-)
-app.add_typer(train_app, name="train")
+train_app = command_group("train", "Train the paper's networks on a prepared cache (`sianms prepare`).")
+
+
+# The options every training takes (typer reads these defaults; sharing them keeps the
+# trainings' flags identical).
+CACHE = typer.Option(..., help="Training cache (`sianms prepare` of a training split).")
+OUT = typer.Option(..., help="Run folder: checkpoint.pt, config.json, metrics.csv, curves.png.")
+SEED = typer.Option(0, help="Seed of every random source (same seed, same weights on a CPU).")
+DEVICE = typer.Option("auto", help="auto (CUDA, then CPU), cpu, cuda or cuda:N.")
+THREADS = typer.Option(None, help="CPU threads for torch [default: torch's choice].")
+RESUME = typer.Option(False, "--resume", help="Continue the run at --out from its last checkpoint.")
+OVERWRITE = typer.Option(False, "--overwrite", help="Replace the run at --out.")
+QUIET = typer.Option(False, "--quiet", help="No progress bar, no per-epoch lines.")
+AS_JSON = typer.Option(False, "--json", help="Print the result as JSON (and nothing else) on stdout.")
+
+
+def _use_threads(threads: int | None) -> None:
+    """Apply --threads (torch is imported here, never when the CLI starts)."""
+    if threads is not None:
+        import torch
+
+        torch.set_num_threads(max(1, threads))
 
 
 def train_command(name: str) -> Callable[[Callable], Callable]:
@@ -71,9 +83,9 @@ def _json_value(value: Any) -> Any:
 
 @train_command("siamese")
 def siamese_cli(
-    cache: Path = typer.Option(..., help="Training cache (`sianms prepare` of a training split)."),
+    cache: Path = CACHE,
     val_cache: Optional[Path] = typer.Option(None, help="Validation cache: per-epoch AUC, matching P/R/F1, dis_thr."),
-    out: Path = typer.Option(..., help="Run folder: checkpoint.pt, config.json, metrics.csv, curves.png."),
+    out: Path = OUT,
     dim: int = typer.Option(100, help="Embedding size d (paper: 100)."),
     conv_channels: str = typer.Option("128,128", help="Widths of the two conv + max-pool groups."),
     hidden: str = typer.Option("256", help="Widths of the hidden fully connected layers."),
@@ -84,23 +96,20 @@ def siamese_cli(
     lr_step: int = typer.Option(8, help="Epochs between learning-rate decays."),
     epochs: int = typer.Option(25, help="Epochs (one epoch takes every reference instance once)."),
     batch_size: int = typer.Option(8, help="Reference instances per step (N)."),
-    seed: int = typer.Option(0, help="Seed of every random source (same seed, same weights on a CPU)."),
-    device: str = typer.Option("auto", help="auto (CUDA, then CPU), cpu, cuda or cuda:N."),
-    threads: Optional[int] = typer.Option(None, help="CPU threads for torch [default: torch's choice]."),
+    seed: int = SEED,
+    device: str = DEVICE,
+    threads: Optional[int] = THREADS,
     sweep_dims: Optional[str] = typer.Option(None, help="Train one model per d (e.g. 5,10,20,50,100,200,500,1000) "
                                                          "into --out/d<d>/ and tabulate them in sweep.md/json."),
-    resume: bool = typer.Option(False, "--resume", help="Continue the run at --out from its last checkpoint."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace the run at --out."),
-    quiet: bool = typer.Option(False, "--quiet", help="No progress bar, no per-epoch lines."),
-    as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (and nothing else) on stdout."),
+    resume: bool = RESUME,
+    overwrite: bool = OVERWRITE,
+    quiet: bool = QUIET,
+    as_json: bool = AS_JSON,
 ) -> None:
     """Train the siamese re-identification network (paper §III-B, §IV) with online hard negatives."""
-    import torch
-
     from sianms_cli.training.siamese import SiameseConfig, parse_dims, run, sweep, sweep_markdown
 
-    if threads is not None:
-        torch.set_num_threads(max(1, threads))
+    _use_threads(threads)
     follower = os.environ.get("RANK", "0") != "0"  # under torchrun only rank 0 reports
     quiet = quiet or follower
     config = SiameseConfig(
@@ -158,9 +167,9 @@ def siamese_cli(
 
 @train_command("fpointnet")
 def fpointnet_cli(
-    cache: Path = typer.Option(..., help="Training cache (`sianms prepare` of a training split)."),
+    cache: Path = CACHE,
     val_cache: Optional[Path] = typer.Option(None, help="Validation cache: per-epoch IoU rates, errors, per class."),
-    out: Path = typer.Option(..., help="Run folder: checkpoint.pt, config.json, metrics.csv, curves.png."),
+    out: Path = OUT,
     classes: str = typer.Option("car,pedestrian,bicycle", help="Cache classes, in one-hot order (bicycle = cyclist)."),
     num_points: int = typer.Option(1024, help="Points drawn per frustum (original: 1,024; fewer for CPU runs)."),
     num_object_points: int = typer.Option(512, help="Masked points passed to the T-Net and box net (original: 512)."),
@@ -177,21 +186,18 @@ def fpointnet_cli(
     decay_rate: float = typer.Option(0.5, help="Learning-rate factor per step."),
     box_weight: float = typer.Option(1.0, help="Weight of the box terms (λ)."),
     corner_weight: float = typer.Option(10.0, help="Weight of the corner loss inside λ."),
-    seed: int = typer.Option(0, help="Seed of every random source (same seed, same weights on a CPU)."),
-    device: str = typer.Option("auto", help="auto (CUDA, then CPU), cpu, cuda or cuda:N."),
-    threads: Optional[int] = typer.Option(None, help="CPU threads for torch [default: torch's choice]."),
-    resume: bool = typer.Option(False, "--resume", help="Continue the run at --out from its last checkpoint."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace the run at --out."),
-    quiet: bool = typer.Option(False, "--quiet", help="No progress bar, no per-epoch lines."),
-    as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (and nothing else) on stdout."),
+    seed: int = SEED,
+    device: str = DEVICE,
+    threads: Optional[int] = THREADS,
+    resume: bool = RESUME,
+    overwrite: bool = OVERWRITE,
+    quiet: bool = QUIET,
+    as_json: bool = AS_JSON,
 ) -> None:
     """Train Frustum PointNets v1 (Qi et al., CVPR 2018) on the cache's single-camera frustums."""
-    import torch
-
     from sianms_cli.training.fpointnet import FPointNetConfig, run
 
-    if threads is not None:
-        torch.set_num_threads(max(1, threads))
+    _use_threads(threads)
     config = FPointNetConfig(
         cache=str(cache), val_cache=None if val_cache is None else str(val_cache),
         classes=tuple(name.strip() for name in classes.split(",") if name.strip()), num_points=num_points,

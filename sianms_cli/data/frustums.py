@@ -6,8 +6,7 @@ through the 2D box centre becomes +z. Each point's label is 1 when it lies insid
 associated ground-truth box, else 0; the box's centre and heading are given in both frames.
 
 :func:`extract_frustums` does all the detections of one camera at once (the points are
-projected once, not once per box); :func:`extract_frustum` is the one-box reference it is
-tested against.
+projected once, not once per box).
 """
 
 from __future__ import annotations
@@ -16,8 +15,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from sianms_cli.geometry.boxes import points_in_boxes, points_in_own_boxes
-from sianms_cli.geometry.frustum import frustum_angle, frustum_members, points_in_frustum, rotate_to_frustum
+from sianms_cli.geometry.boxes import points_in_own_boxes
+from sianms_cli.geometry.frustum import frustum_angle, frustum_members, rotate_to_frustum
 from sianms_cli.geometry.quaternion import quat_to_matrix
 
 
@@ -113,7 +112,7 @@ def extract_frustums(
     min_depth: float = 1.0,
     max_depth: float = np.inf,
 ) -> Frustums:
-    """The frustums of all 2D boxes of one camera, equal row for row to :func:`extract_frustum`.
+    """The frustums of all 2D boxes of one camera, equal row for row to cutting each box's frustum on its own (tested).
 
     Membership comes from :func:`~sianms_cli.geometry.frustum.frustum_members` (points
     projected once, a memory-bounded boxes x points mask); each point is rotated by its own
@@ -171,48 +170,3 @@ def _labels(points: np.ndarray, owner: np.ndarray, center: np.ndarray, size: np.
     labels = np.zeros(len(points), dtype=np.int8)
     labels[mine] = points_in_own_boxes(points[mine], compact[owner[mine]], center[boxed], size[boxed], rotation[boxed])
     return labels
-
-
-def extract_frustum(
-    points_cam: np.ndarray,
-    extra: np.ndarray,
-    box2d: np.ndarray,
-    intrinsic: np.ndarray,
-    gt_center_cam: np.ndarray | None = None,
-    gt_size: np.ndarray | None = None,
-    gt_rotation_cam: np.ndarray | None = None,
-    min_depth: float = 1.0,
-    max_depth: float = np.inf,
-) -> Frustum:
-    """The frustum of one 2D box: the slow, obviously-correct reference of :func:`extract_frustums` (for tests).
-
-    Args:
-        points_cam: (P, 3) LiDAR points in the camera frame.
-        extra: (P, k) channels kept with each point.
-        box2d: (4,) [x1, y1, x2, y2] pixels (bounds inclusive).
-        intrinsic: (3, 3) camera matrix.
-        gt_center_cam, gt_size, gt_rotation_cam: the associated box (3,), (3,), (4,), or None.
-        min_depth, max_depth: depth window (exclusive), metres.
-    """
-    inside = points_in_frustum(points_cam, box2d, intrinsic, min_depth=min_depth, max_depth=max_depth)
-    angle = float(frustum_angle(np.asarray(box2d).reshape(1, 4), intrinsic)[0])
-    chosen = np.asarray(points_cam, dtype=np.float64)[inside]
-    rotated = rotate_to_frustum(chosen, angle)
-    labels = np.zeros(len(chosen), dtype=np.int8)
-    box = None
-    if gt_center_cam is not None:
-        center = np.asarray(gt_center_cam, dtype=np.float64).reshape(1, 3)
-        size = np.asarray(gt_size, dtype=np.float64).reshape(1, 3)
-        rotation = np.asarray(gt_rotation_cam, dtype=np.float64).reshape(1, 4)
-        if len(chosen):
-            labels = points_in_boxes(chosen, center, size, rotation)[0].astype(np.int8)
-        heading = float(heading_in_camera(rotation)[0])
-        box = {
-            "center_cam": center[0],
-            "size": size[0],
-            "rotation_cam": rotation[0],
-            "heading_cam": heading,
-            "center_frustum": rotate_to_frustum(center, angle)[0],
-            "heading_frustum": heading - angle,
-        }
-    return Frustum(angle, rotated, np.asarray(extra)[inside], labels, box)

@@ -276,12 +276,14 @@ def run(
     make_folder(out)
     with exclusive_lock(out / FOLDER_LOCK, what=str(out), blocking=True):
         claim_output(out, resolved, expected, db.dataroot, overwrite)
-    todo = [(token, name) for token, name in mine if not shard_done(out, name)]
-    result = PrepareResult(out, {}, shards_skipped=[name for _, name in mine if shard_done(out, name)])
-    progress.start(sum(len(db.sample_tokens_of_scene(token)) for token, _ in todo), "sample", "prepare")
+    finished = {name for _, name in mine if shard_done(out, name)}
+    todo = [(token, name) for token, name in mine if name not in finished]
+    result = PrepareResult(out, {}, shards_skipped=[name for _, name in mine if name in finished])
+    samples = {name: len(db.sample_tokens_of_scene(token)) for token, name in todo}
+    progress.start(sum(samples.values()), "sample", "prepare")
     outcomes = {"written": result.shards_run, "finished": result.shards_skipped, "busy": result.shards_busy}
     try:
-        with closing(_run_shards(preparer, config, out, todo, workers, progress)) as shards:
+        with closing(_run_shards(preparer, config, out, todo, samples, workers, progress)) as shards:
             for name, outcome in shards:
                 outcomes[outcome].append(name)
     finally:
@@ -290,13 +292,13 @@ def run(
 
 
 def _run_shards(preparer: Preparer, config: PrepareConfig, out: Path, todo: list[tuple[str, str]],
-                workers: int, progress: Progress) -> Iterator[tuple[str, str]]:
-    """(shard, outcome) of each shard to do, in this process or in ``workers`` processes."""
+                samples: dict[str, int], workers: int, progress: Progress) -> Iterator[tuple[str, str]]:
+    """(shard, outcome) of each shard to do, in this process or in ``workers`` processes;
+    ``samples`` counts each shard's samples for the progress of worker-written shards."""
     if workers == 1 or len(todo) <= 1:
         for token, name in todo:
             yield name, write_scene_shard(preparer, out, token, name, on_sample=progress.advance)
         return
-    samples = {name: len(preparer.db.sample_tokens_of_scene(token)) for token, name in todo}
     with worker_pool(min(workers, len(todo)), _init_worker, (config,)) as pool:
         for name, outcome in pool.imap_unordered(_run_in_worker, [(str(out), t, s) for t, s in todo]):
             progress.advance(samples[name])

@@ -4,13 +4,59 @@ import pyarrow.parquet as pq
 import pytest
 
 from sianms_cli.data.cache import ShardWriter, clear_shard, decode_roi_features, shard_done, write_manifest
-from sianms_cli.data.frustums import extract_frustum, extract_frustums, heading_in_camera
+from sianms_cli.data.frustums import Frustum, extract_frustums, heading_in_camera
 from sianms_cli.data.pairs import contiguous_pairs
 from sianms_cli.data.schemas import FRUSTUMS_SCHEMA, PAIRS_SCHEMA, cache_schemas, detections_schema, with_metadata
-from sianms_cli.geometry.boxes import box_corners
+from sianms_cli.geometry.boxes import box_corners, points_in_boxes
+from sianms_cli.geometry.frustum import frustum_angle, points_in_frustum, rotate_to_frustum
 from sianms_cli.geometry.quaternion import quat_multiply, yaw_to_quat
 
 K = np.array([[100.0, 0, 50], [0, 100, 50], [0, 0, 1]])
+
+
+def extract_frustum(
+    points_cam: np.ndarray,
+    extra: np.ndarray,
+    box2d: np.ndarray,
+    intrinsic: np.ndarray,
+    gt_center_cam: np.ndarray | None = None,
+    gt_size: np.ndarray | None = None,
+    gt_rotation_cam: np.ndarray | None = None,
+    min_depth: float = 1.0,
+    max_depth: float = np.inf,
+) -> Frustum:
+    """The frustum of one 2D box: the slow, obviously-correct reference of ``extract_frustums``.
+
+    Args:
+        points_cam: (P, 3) LiDAR points in the camera frame.
+        extra: (P, k) channels kept with each point.
+        box2d: (4,) [x1, y1, x2, y2] pixels (bounds inclusive).
+        intrinsic: (3, 3) camera matrix.
+        gt_center_cam, gt_size, gt_rotation_cam: the associated box (3,), (3,), (4,), or None.
+        min_depth, max_depth: depth window (exclusive), metres.
+    """
+    inside = points_in_frustum(points_cam, box2d, intrinsic, min_depth=min_depth, max_depth=max_depth)
+    angle = float(frustum_angle(np.asarray(box2d).reshape(1, 4), intrinsic)[0])
+    chosen = np.asarray(points_cam, dtype=np.float64)[inside]
+    rotated = rotate_to_frustum(chosen, angle)
+    labels = np.zeros(len(chosen), dtype=np.int8)
+    box = None
+    if gt_center_cam is not None:
+        center = np.asarray(gt_center_cam, dtype=np.float64).reshape(1, 3)
+        size = np.asarray(gt_size, dtype=np.float64).reshape(1, 3)
+        rotation = np.asarray(gt_rotation_cam, dtype=np.float64).reshape(1, 4)
+        if len(chosen):
+            labels = points_in_boxes(chosen, center, size, rotation)[0].astype(np.int8)
+        heading = float(heading_in_camera(rotation)[0])
+        box = {
+            "center_cam": center[0],
+            "size": size[0],
+            "rotation_cam": rotation[0],
+            "heading_cam": heading,
+            "center_frustum": rotate_to_frustum(center, angle)[0],
+            "heading_frustum": heading - angle,
+        }
+    return Frustum(angle, rotated, np.asarray(extra)[inside], labels, box)
 
 
 def test_frustum_keeps_points_in_the_box_rotates_and_labels():
