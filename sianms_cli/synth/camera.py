@@ -517,15 +517,20 @@ class _Casters:
         return shadow
 
 
-def _shadow_casters(parts: Parts, view: _View, sun: np.ndarray) -> _Casters | None:
-    """The objects' parts that may cast a shadow into the image; None when none does.
-    Scenery casts no shadows: they would cost more rays than the whole image."""
+def _shadow_casters(parts: Parts, view: _View, sun: np.ndarray, casts: np.ndarray | None = None) -> _Casters | None:
+    """The parts that may cast a shadow into the image; None when none does.
+
+    casts (M,) bool: the parts allowed to cast one; None for the objects' parts (owner >= 0).
+    Buildings cast none: their sun-swept volumes would cost more rays than the whole image.
+    """
     if sun[2] <= 1e-3:
         return None
+    if casts is None:
+        casts = parts.owner >= 0
     # Each swept volume lies within a sphere around the middle of the part's sweep.
     radius = parts.bounding_radius()
     sweep = np.maximum(parts.center[:, 2] + radius, 0.0) / sun[2]
-    part = np.flatnonzero((parts.owner >= 0) & _in_frustum(parts.center - 0.5 * sweep[:, None] * sun,
+    part = np.flatnonzero(casts & _in_frustum(parts.center - 0.5 * sweep[:, None] * sun,
                                                            radius + 0.5 * sweep, view))
     if len(part) == 0:
         return None
@@ -873,7 +878,8 @@ def _apply_style(radiance: np.ndarray, style: CameraStyle, view: _View, rows: sl
 
 def render_camera(parts: Parts, appearances, ground_shader, intrinsic, cam_to_world, width: int,
                   height: int, style: CameraStyle, sun_direction, n_objects: int,
-                  rng: np.random.Generator, shade: bool = True) -> CameraRender:
+                  rng: np.random.Generator, shade: bool = True,
+                  casts_shadow: np.ndarray | None = None) -> CameraRender:
     """Render one camera image with its owner map and depth buffer.
 
     parts: every part of the frame, global frame (owner -1 = scenery); appearances:
@@ -883,7 +889,9 @@ def render_camera(parts: Parts, appearances, ground_shader, intrinsic, cam_to_wo
     width, height in pixels; style: the camera's `CameraStyle`; sun_direction (3,) towards
     the sun, global frame (normalised here); n_objects: length of the per-object counts
     (owners outside [0, n_objects) are not counted); rng: draws the sensor noise only;
-    shade: False skips shading (image None) when only the coverage counts are needed.
+    shade: False skips shading (image None) when only the coverage counts are needed;
+    casts_shadow (M,) bool: the parts that cast shadows (default: the objects', owner >= 0;
+    street clutter too where the caller says so).
     """
     view = _make_view(np.asarray(intrinsic, np.float64), np.asarray(cam_to_world, np.float64), width, height)
     sun = np.asarray(sun_direction, np.float64)
@@ -906,7 +914,7 @@ def render_camera(parts: Parts, appearances, ground_shader, intrinsic, cam_to_wo
                             visible_pixels=visible_pixels)
 
     scene = _Scene(_part_table(parts, view), _looks(appearances, parts, n_objects), ground_shader, view, sun,
-                   _shadow_casters(parts, view, sun))
+                   _shadow_casters(parts, view, sun, casts_shadow))
     image = np.empty((height, width, 3), np.uint8)
     band = max(1, _BAND_PIXELS // width)
     for top in range(0, height, band):

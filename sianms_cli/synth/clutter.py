@@ -246,18 +246,27 @@ def _street_lights(items: _Items, street: Street, rng: np.random.Generator) -> N
 
 def _junction_corners(items: _Items, street: Street, rng: np.random.Generator) -> None:
     """A signal at every corner of every junction, facing the traffic approaching on its
-    side; a row of bollards along the kerb beyond it at some corners."""
+    side; a row of bollards along the kerb beyond it at some corners. The corners lie half
+    a metre beyond the route length the junction occupies (its ``half_span``: the crossing
+    street's half width where the route goes straight across, the whole turn where it
+    turns); the two crossing streets of a 4-way junction where the route turns share one
+    set of corners."""
     kerb = street.section.kerb
+    done: set[float] = set()
     for junction in street.intersections:
+        if junction.s in done:
+            continue
+        done.add(junction.s)
+        corner = junction.half_span + CORNER_S - CROSSING_HALF_WIDTH
         for along in (-1.0, +1.0):
             for side in (+1, -1):
-                s = np.array([junction.s + along * CORNER_S])
+                s = np.array([junction.s + along * corner])
                 xy, heading = street.route.pose(s, side * (kerb + _INSET["traffic_light"]))
                 items.add("traffic_light", _sizes("traffic_light", rng, 1), xy,
                           heading + (0.0 if along > 0 else np.pi))
                 if rng.random() < 0.4:
                     n = int(rng.integers(2, 4))
-                    s_row = junction.s + along * (CORNER_S + 1.1 + 1.4 * np.arange(n))
+                    s_row = junction.s + along * (corner + 1.1 + 1.4 * np.arange(n))
                     xy, heading = street.route.pose(s_row, side * (kerb + _INSET["bollard"]))
                     items.add("bollard", _sizes("bollard", rng, n), xy, heading)
 

@@ -484,9 +484,24 @@ def _perturbed_rig(rig: tuple[SensorCalibration, ...], rng: np.random.Generator)
 
 
 def _describe(plan: ScenePlan, location: str) -> str:
-    parts = [f"{'Two lanes' if plan.street.section.lanes_per_direction == 2 else 'One lane'} each way"]
-    if plan.street.intersections:
+    """Free text as nuScenes scene descriptions are: the place and what the ego does."""
+    street = plan.street
+    lanes = ("One lane", "Two lanes", "Three lanes")[street.section.lanes_per_direction - 1]
+    parts = [f"{lanes} each way" + (", median" if street.section.median > 0 else "")]
+    turns = [i for i in street.intersections if not i.through]
+    if turns:
+        side = "left" if float(plan.route.curvature_at(np.array([turns[0].s]))[0]) > 0 else "right"
+        parts.append(f"ego turns {side} at a {'4-way' if len(turns) > 1 else 'T'} junction")
+    if any(i.through for i in street.intersections):
         parts.append("intersection")
+        if any(path is not None for path in plan.agents.path):
+            parts.append("turning traffic")
+    if plan.ego.shift[0] != 0.0:
+        parts.append("ego changes lane")
+    if np.any(plan.agents.shift[:, 0] != 0.0):
+        parts.append("lane changes and parking manoeuvres")
+    if street.car_parks:
+        parts.append("car park")
     if plan.roadworks:
         parts.append("roadworks with barriers and cones")
     if plan.ego.speed == 0.0:
@@ -521,13 +536,17 @@ class _SceneSensing:
             _owned(object_parts(SHAPE_KIND[category], _shape_size(size), appearance), owner)
             for owner, (category, size, appearance) in enumerate(zip(agents.category, agents.size, self.appearances))
         ])
-        self.scenery = concat_parts([
-            *(_owned(object_parts("building", b.size, sample_appearance("building", rng)), -1,
-                     (b.center[0], b.center[1], b.size[2] / 2), b.yaw)
-              for b in plan.buildings),
-            clutter_parts(plan.street, _scene_rng(config.seed, index, "clutter"), plan.buildings,
-                          road_user_boxes(plan.agents, plan.route)),
-        ])
+        buildings = concat_parts([
+            _owned(object_parts("building", b.size, sample_appearance("building", rng)), -1,
+                   (b.center[0], b.center[1], b.size[2] / 2), b.yaw)
+            for b in plan.buildings])
+        clutter = clutter_parts(plan.street, _scene_rng(config.seed, index, "clutter"), plan.buildings,
+                                road_user_boxes(plan.agents, plan.route))
+        self.scenery = concat_parts([buildings, clutter])
+        # Street clutter casts shadows as the road users do (trees and poles darken the road
+        # and the cars beside them); buildings do not (see camera._shadow_casters).
+        self.scenery_casts_shadow = np.concatenate([np.zeros(len(buildings.owner), bool),
+                                                    np.ones(len(clutter.owner), bool)])
         style_rng = _scene_rng(config.seed, index, "camera-style")
         self.styles = {channel: camera_style(style_rng) for channel in CAMERA_CHANNELS}
         self.sun = _sun_direction(_scene_rng(config.seed, index, "sun"))
@@ -651,10 +670,12 @@ class _SceneSensing:
         cam_to_global = ego_to_global @ make_transform(calibration.rotation, calibration.translation)
         scale = self.config.image_scale if self.config.sensors == "all" else VISIBILITY_SCALE
         width, height = round(FULL_IMAGE_SIZE[0] * scale), round(FULL_IMAGE_SIZE[1] * scale)
+        casts_shadow = np.concatenate([np.ones(len(parts.owner) - len(self.scenery_casts_shadow), bool),
+                                       self.scenery_casts_shadow])
         return render_camera(parts, self.appearances, self.plan.street.ground_albedo,
                              calibration.intrinsic(scale), cam_to_global, width, height,
                              self.styles[channel], self.sun, len(self.appearances), self.camera_rng,
-                             shade=self.config.sensors == "all")
+                             shade=self.config.sensors == "all", casts_shadow=casts_shadow)
 
     def _sample_data(self, channel, sample_token, timestamp, ego_to_global, calibration_tokens, image_size, data,
                      sweep: int = 0):
@@ -720,14 +741,21 @@ def _visibility_token(fraction: np.ndarray) -> np.ndarray:
 def _annotation_records(plan: ScenePlan, frames: list[_Frame], sample_tokens: list[str], seed: int, name: str):
     """sample_annotation and instance records of a scene.
 
-    An object is annotated in the keyframes where it lies within the annotation radius,
-    provided the LiDAR saw it in at least one of them: annotators keep an object through
-    a temporary occlusion (hence some boxes with no point, as in nuScenes) but never
-    annotate one nothing saw.
+    An object is annotated from the first keyframe in which the LiDAR saw it within the
+    annotation radius to the last one, in every keyframe between where it lies within the
+    radius: annotators keep an object through a temporary occlusion (interpolated tracks,
+    hence some boxes with no point, as in nuScenes; nuscenes-devkit#313, #808, #831) but
+    neither start a track before anything saw the object nor carry it on after the last
+    sighting (the annotation rule is >= 1 LiDAR or radar point, instructions_nuscenes.md).
+    Annotating the whole time an object was within 80 m instead gave 30 % boxes without a
+    point, nuScenes 12-19 % (reference §9.4-5).
     """
     annotated = np.stack([f.annotated for f in frames])  # (K, N)
-    points = np.stack([f.lidar_points for f in frames])
-    keep = annotated & (points * annotated).sum(axis=0, keepdims=True).astype(bool)
+    seen = annotated & (np.stack([f.lidar_points for f in frames]) > 0)
+    k = np.arange(len(frames))[:, None]
+    first = np.where(seen, k, len(frames)).min(axis=0)
+    last = np.where(seen, k, -1).max(axis=0)
+    keep = annotated & (k >= first) & (k <= last)
     agents = plan.agents
     for owner in np.flatnonzero(keep.any(axis=0)):
         keyframes = np.flatnonzero(keep[:, owner])

@@ -21,7 +21,7 @@ EGO_SIZE = np.array([1.73, 4.08, 1.56])  # Renault Zoe w, l, h (nuScenes' car, r
 CLEARANCE = 0.3  # metres kept between bodies during a manoeuvre
 CHECK_STEP = 0.2  # seconds between the checked instants: 2 m at a 10 m/s speed difference
 EGO_LANE_CHANGE_SHARE = 0.35
-"""Of the straight, moving scenes with two lanes each way (~1/3 of the scenes), so ~10 % of
+"""Of the straight, moving scenes with two or more lanes each way (~1/3 of the scenes), so ~12 % of
 all scenes: with the ~20 % that turn, about 30 % are not simply going straight (nuScenes:
 73.9 % go-straight, reference §9.5-1)."""
 LANE_CHANGE_SHARE = 0.12  # moving vehicles on two-lane carriageways that change lane in a scene
@@ -41,29 +41,27 @@ def plan_manoeuvres(rng: np.random.Generator, street: Street, ego, agents, ego_l
     times = np.arange(0.0, seconds + 1e-9, CHECK_STEP)
     agents = _revert_conflicts(agents, original, street, ego, times)
     if ego_lane_change:
-        agents = _without(agents, _conflicts_with_ego(agents, street, ego, times))
+        agents = without(agents, _conflicts_with_ego(agents, street, ego, times))
     return ego, agents
-
-
-def _lane_of(offset: np.ndarray) -> np.ndarray:
-    """Lane index (0 next to the centreline) of lane-centre offsets."""
-    return np.rint(np.abs(offset) / LANE_WIDTH - 0.5).astype(int)
 
 
 def _moving_lane_vehicles(street: Street, agents) -> np.ndarray:
     """(N,) bool: moving vehicles on the route, in a driving lane."""
-    in_lane = np.abs(np.abs(agents.offset) - (_lane_of(agents.offset) + 0.5) * LANE_WIDTH) < 1e-6
-    in_lane &= np.abs(agents.offset) < street.section.lanes_per_direction * LANE_WIDTH
+    section = street.section
+    lane_centre = section.median / 2 + (section.lane_of(agents.offset) + 0.5) * LANE_WIDTH
+    in_lane = np.abs(np.abs(agents.offset) - lane_centre) < 1e-6
+    in_lane &= np.abs(agents.offset) < section.bike_lane_inner
     return np.isin(agents.category, VEHICLES) & ~agents.on_line & ~agents.parked & (agents.speed > 0) & in_lane
 
 
 def _with_lane_changes(rng: np.random.Generator, street: Street, agents):
-    """Vehicles on a carriageway of two lanes move to the other lane of their direction."""
+    """Vehicles on a carriageway of two or more lanes move to the next lane of their direction
+    (outwards from lane 0, inwards from the others)."""
     if street.section.lanes_per_direction < 2:
         return agents
     chosen = _moving_lane_vehicles(street, agents) & (rng.random(len(agents)) < LANE_CHANGE_SHARE)
-    lane = _lane_of(agents.offset)
-    change = np.sign(agents.offset) * (1 - 2 * lane) * LANE_WIDTH  # lane 0 -> 1 moves outwards
+    lane = street.section.lane_of(agents.offset)
+    change = np.sign(agents.offset) * np.where(lane == 0, 1, -1) * LANE_WIDTH  # lane 0 -> 1 moves outwards
     shift = agents.shift.copy()
     n = int(chosen.sum())
     shift[chosen] = np.column_stack([change[chosen], rng.uniform(0.0, 16.0, n), rng.uniform(3.0, 6.0, n)])
@@ -103,7 +101,7 @@ def _with_pull_ins(rng: np.random.Generator, street: Street, agents):
     section = street.section
     if not section.parking:
         return agents
-    outer = _moving_lane_vehicles(street, agents) & (_lane_of(agents.offset) == section.lanes_per_direction - 1)
+    outer = _moving_lane_vehicles(street, agents) & (section.lane_of(agents.offset) == section.lanes_per_direction - 1)
     chosen = outer & (agents.shift[:, 0] == 0.0) & (agents.accel == 0.0) & (rng.random(len(agents)) < PULL_IN_SHARE)
     rows = np.flatnonzero(chosen)
     n = len(rows)
@@ -121,9 +119,9 @@ def _with_pull_ins(rng: np.random.Generator, street: Street, agents):
 
 
 def _ego_lane_change(rng: np.random.Generator, street: Street, ego):
-    """The ego moves to the other lane of its direction."""
-    lane = int(_lane_of(np.array([ego.offset]))[0])
-    change = street.section.lane_center(1 - lane, +1) - ego.offset
+    """The ego moves to the next lane of its direction (outwards from lane 0, else inwards)."""
+    lane = int(street.section.lane_of(np.array([ego.offset]))[0])
+    change = street.section.lane_center(1 if lane == 0 else lane - 1, +1) - ego.offset
     return replace(ego, shift=(float(change), float(rng.uniform(1.0, 14.0)), float(rng.uniform(3.0, 6.0))))
 
 
@@ -139,7 +137,7 @@ def _circles(center: np.ndarray, yaw: np.ndarray, size: np.ndarray) -> tuple[np.
     return center[:, None, :] + offsets, short / 2
 
 
-def _closest_approach(agents, street: Street, rows: np.ndarray, times: np.ndarray, ego) -> np.ndarray:
+def closest_approach(agents, street: Street, rows: np.ndarray, times: np.ndarray, ego) -> np.ndarray:
     """(len(rows), N+1) smallest clearance over ``times`` between the bodies of the road users
     ``rows`` and every road user: agents 0..N-1, then the ego (row or column N)."""
     n = len(agents)
@@ -163,7 +161,7 @@ def _revert_conflicts(agents, original, street: Street, ego, times: np.ndarray):
         rows = np.flatnonzero(np.any(agents.shift != original.shift, axis=1))
         if len(rows) == 0:
             return agents
-        clash = (_closest_approach(agents, street, rows, times, ego) < CLEARANCE).any(axis=1)
+        clash = (closest_approach(agents, street, rows, times, ego) < CLEARANCE).any(axis=1)
         if not clash.any():
             return agents
         back = rows[clash]
@@ -179,10 +177,10 @@ def _restored(values: np.ndarray, original: np.ndarray, rows: np.ndarray) -> np.
 
 def _conflicts_with_ego(agents, street: Street, ego, times: np.ndarray) -> np.ndarray:
     """(N,) bool: agents whose bodies come within ``CLEARANCE`` of the ego's."""
-    return _closest_approach(agents, street, np.array([len(agents)]), times, ego)[0, :-1] < CLEARANCE
+    return closest_approach(agents, street, np.array([len(agents)]), times, ego)[0, :-1] < CLEARANCE
 
 
-def _without(agents, drop: np.ndarray):
+def without(agents, drop: np.ndarray):
     """The agents less those where ``drop`` (N,) is true."""
     keep = ~drop
     return replace(agents, **{name: getattr(agents, name)[keep] for name in agents.__dataclass_fields__})

@@ -9,6 +9,7 @@ the plane z = 0 of the global frame.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -35,15 +36,17 @@ PAINT_COLOUR = np.array([[0.75, 0.75, 0.72], [0.7, 0.5, 0.08]])  # white, yellow
 
 @dataclass(frozen=True)
 class CrossSection:
-    """Lanes from the centreline outwards, the same on both sides of the road."""
+    """Lanes from the centreline outwards, the same on both sides of the road; an arterial
+    has a planted median of width ``median`` between its carriageways (0: none)."""
 
     lanes_per_direction: int
     parking: bool
     drive_side: int  # +1: traffic keeps right (Boston), -1: keeps left (Singapore)
+    median: float = 0.0
 
     @property
     def bike_lane_inner(self) -> float:
-        return self.lanes_per_direction * LANE_WIDTH
+        return self.median / 2 + self.lanes_per_direction * LANE_WIDTH
 
     @property
     def parking_inner(self) -> float:
@@ -62,7 +65,11 @@ class CrossSection:
         """Lateral offset ``d`` of driving lane ``lane`` (0 = next to the centreline) used by
         traffic moving in ``direction`` (+1 along increasing ``s``, -1 against it)."""
         side = -self.drive_side * direction
-        return side * (lane + 0.5) * LANE_WIDTH
+        return side * (self.median / 2 + (lane + 0.5) * LANE_WIDTH)
+
+    def lane_of(self, offset: np.ndarray) -> np.ndarray:
+        """Lane index (0 next to the centreline or the median) of lane-centre offsets ``d`` (N,)."""
+        return np.rint((np.abs(offset) - self.median / 2) / LANE_WIDTH - 0.5).astype(int)
 
 
 @dataclass(frozen=True)
@@ -79,9 +86,9 @@ class Route:
     lengths: np.ndarray
     curvatures: np.ndarray
 
-    @property
+    @cached_property
     def starts(self) -> np.ndarray:
-        """(S,) arc length at which each segment starts."""
+        """(S,) arc length at which each segment starts (computed once: see _segment_starts)."""
         return np.concatenate([[0.0], np.cumsum(self.lengths)[:-1]])
 
     @property
@@ -101,6 +108,21 @@ class Route:
             points[i] = point
             point = point + _advance(length, curvature, heading)
         return points, headings
+
+    def point(self, s: float) -> tuple[float, float, float]:
+        """x, y and heading of the centreline at one arc length ``s`` (as :meth:`pose`, in plain
+        floats: ~50x faster for a single point, which the turning road users' poses need)."""
+        points, headings = self._segment_starts
+        starts = self.starts
+        i = min(max(int(np.searchsorted(starts, s, side="right")) - 1, 0), len(starts) - 1)
+        u = s - float(starts[i])
+        k = float(self.curvatures[i])
+        h0 = float(headings[i])
+        x0, y0 = float(points[i, 0]), float(points[i, 1])
+        if abs(k) < 1e-9:
+            return x0 + u * math.cos(h0), y0 + u * math.sin(h0), h0
+        return (x0 + (math.sin(h0 + k * u) - math.sin(h0)) / k, y0 + (math.cos(h0) - math.cos(h0 + k * u)) / k,
+                h0 + k * u)
 
     def curvature_at(self, s: np.ndarray) -> np.ndarray:
         """Curvature (N,) 1/m of the centreline at arc lengths ``s`` (the end segments extend)."""
@@ -180,7 +202,8 @@ def _segment_coordinates(
 class Intersection:
     """A straight crossing street through the route point at arc length ``s``.
 
-    Where the route goes straight across, the crossing street has both arms. Where the route
+    Where the route goes straight across, the crossing street has both arms, or one at a side
+    street (``side_street``, a T junction the route goes straight past). Where the route
     turns at a junction, ``s`` is the middle of the turn, ``center`` the corner where the
     incoming and outgoing centrelines meet, and the crossing street has only the arms
     that are not the route: a T junction is one crossing street along the outgoing road with
@@ -193,11 +216,13 @@ class Intersection:
     heading: float  # direction of the crossing street, radians
     arms: tuple[int, ...] = (-1, 1)  # +1: the arm along ``heading``, -1: the arm behind it
     half_span: float = CROSSING_HALF_WIDTH
+    side_street: bool = False  # a T junction the route goes straight past: one arm, the route straight on
 
     @property
     def through(self) -> bool:
-        """The route goes straight across: zebras and stop lines on both sides of it."""
-        return len(self.arms) == 2
+        """The route goes straight across (or past a side street): zebras and stop lines on
+        both sides of it."""
+        return len(self.arms) == 2 or self.side_street
 
     def along_limits(self) -> tuple[float, float]:
         """Range of the along-street coordinate that the crossing street covers: 150 m each
@@ -281,6 +306,8 @@ class Street:
         klass = np.full(len(xy), 2, dtype=np.int8)
         klass[(abs_d < self.section.pavement_outer) | crossing_pavement.any(axis=1)] = 1
         klass[(abs_d < kerb) | on_crossing.any(axis=1) | self.in_car_park(s, d)] = 0
+        if self.section.median > 0:
+            klass[(abs_d < self.section.median / 2 - 0.3) & ~on_crossing.any(axis=1)] = 2  # planted median
 
         on_route_road = ~in_junction.any(axis=1) & (abs_d < kerb)
         center_line = self._center_line(s, d) & on_route_road
@@ -291,7 +318,10 @@ class Street:
         return klass, markings, yellow
 
     def _center_line(self, s: np.ndarray, d: np.ndarray) -> np.ndarray:
-        """Double solid line (Boston style) or a single dashed line (Singapore style)."""
+        """Double solid line (Boston style) or a single dashed line (Singapore style); beside
+        a median, a solid edge line along each side of it."""
+        if self.section.median > 0:
+            return np.abs(np.abs(d) - self.section.median / 2) < 0.08
         if self.center_line_yellow:
             return np.abs(np.abs(d) - 0.15) < 0.06
         return (np.abs(d) < 0.08) & _dashes(s, 3.0, 6.0)
@@ -301,7 +331,7 @@ class Street:
         abs_d = np.abs(d)
         dividers = np.zeros(s.shape, dtype=bool)
         for lane in range(1, section.lanes_per_direction):
-            dividers |= (np.abs(abs_d - lane * LANE_WIDTH) < 0.07) & _dashes(s, 3.0, 6.0)
+            dividers |= (np.abs(abs_d - section.median / 2 - lane * LANE_WIDTH) < 0.07) & _dashes(s, 3.0, 6.0)
         bike_line = np.abs(abs_d - section.bike_lane_inner) < 0.08
         parking_line = (np.abs(abs_d - section.parking_inner) < 0.06) & section.parking
         stop_lines = np.zeros(s.shape, dtype=bool)

@@ -8,6 +8,15 @@ speed and heading are consistent between keyframes by construction, and agents t
 lane share its speed, which keeps them from driving into one another. About a quarter of
 the routes turn at a T or 4-way junction (``TURN_SHARE``), where the ego turns too.
 
+Places: streets of one or two lanes each way and arterials of three with a planted median;
+crossings and side streets where the route goes straight on; T and 4-way junctions where it
+turns; car parks; driveways. At a crossing or side street the crossing street's arms either
+wait at the stop line or flow: their cars drive across the route or turn onto it, and cars
+of the route's lanes turn off into the crossing street, each on a path of its own
+(``junctions.py``: lane, 90-degree fillet, lane). Cars wait in driveways and pull out. A road
+user that would meet anyone on its way through a junction arrives later, or is left out
+(``_drop_junction_conflicts``), so no two road users ever overlap.
+
 Class mix and density target the nuScenes trainval statistics collected in
 ``shared/reference/nuscenes.md`` §9 (objects per keyframe: cars 14.4, pedestrians 6.4,
 barriers 4.5, cones 2.9, trucks 2.6, buses 0.5, bicycles 0.35, motorcycles 0.37; moving
@@ -19,10 +28,18 @@ prints what a generated dataset actually holds.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 
-from sianms_cli.synth.manoeuvres import EGO_LANE_CHANGE_SHARE, plan_manoeuvres
+from sianms_cli.synth.junctions import ARM_LENGTH, turn_off_route, turn_onto_route, turn_radius
+from sianms_cli.synth.manoeuvres import (
+    CLEARANCE,
+    EGO_LANE_CHANGE_SHARE,
+    closest_approach,
+    plan_manoeuvres,
+    without,
+)
 from sianms_cli.synth.parking import bay_poses, choose_car_parks
 from sianms_cli.synth.road import (
     LANE_WIDTH,
@@ -77,6 +94,46 @@ SHAPE_KIND = {
     "movable_object.trafficcone": "traffic_cone",
 }
 
+LANES_PER_DIRECTION_SHARES = (0.45, 0.35, 0.20)
+"""Streets of 1, 2 and 3 lanes each way; 3-lane streets are arterials with a median (Seaport
+Boulevard and Congress Street in Boston Seaport, the 3-lane dual carriageways of One North
+and Queenstown). Our estimate of the nuScenes routes' mix, no published figure."""
+MEDIAN_WIDTH = (2.0, 6.0)
+"""Metres of planted median on an arterial: wide enough for planting, no wider than a turn
+pocket plus its kerbs (our estimate; no published distribution for the nuScenes cities)."""
+JUNCTION_SPACING = (80.0, 200.0)
+"""Metres between junctions along the route: city blocks of 80-200 m (Boston Seaport's blocks
+are ~100-150 m, Singapore's estates have side roads every 100-200 m; our estimate from
+maps, no published figure)."""
+SIDE_STREET_SHARE = 0.5
+"""Junctions along the route that are side streets (T junctions the route goes straight past)
+rather than crossings: three-way junctions are about as common as four-way ones in the
+street networks of US and European cities (our estimate after street-network studies; no
+figure for the nuScenes routes)."""
+DRIVEWAYS_PER_SCENE = 1.0
+"""Poisson mean of driveways along the ego's drive with a car waiting to pull out (our
+estimate: a few driveways per block on both sides, most of them empty at any moment)."""
+FLOWING_ARM_SHARE = 0.5
+"""Arms of a straight-across junction whose traffic drives through (the others wait at the
+stop line): a signal gives the crossing street green about half of each cycle, and nuScenes
+junction scenes show both (our estimate; no published figure)."""
+TURN_IN_SHARE = 0.2
+TURN_OFF_SHARE = 0.2
+"""Vehicles reaching a junction that turn (left and right together): our estimate, half left
+and half right; nuScenes publishes no turning shares for its routes."""
+JUNCTION_CHECK_STEP = 0.05  # s: 1.1 m at the largest crossing speed difference (22 m/s)
+GIVE_WAY_TRIES = 3  # later arrivals tried before a junction road user is left out
+# Densities (mean gaps in metres, times 1 / busyness; the parked share of kerb slots), set so
+# that a 40-scene set holds trainval's objects per keyframe (reference §9.2-1: cars 14.4,
+# pedestrians 6.4, trucks 2.6, buses 0.48, motorcycles 0.37, bicycles 0.35) once only the
+# keyframes between an object's first and last LiDAR sighting are annotated
+# (generate._annotation_records); the vehicle mixes are in _vehicle_category.
+LANE_GAP = 22.0  # free gap behind a vehicle in a lane
+PARKED_SHARE = 0.27  # of kerb-side slots, times (busyness + 0.3)
+RIDER_GAP = 1500.0  # between riders in a bike lane
+PARKED_BICYCLE_GAP = 3000.0  # between bicycles parked at one kerb (not times 1 / busyness)
+WALKER_GAP = 85.0  # between walkers on one walking line of a pavement
+STANDING_GAP = 120.0  # between people standing at the back of a pavement
 MOVING_SPEED = 0.2  # m/s: below this a road user counts as standing still
 DEPARTURE_STOP = 120.0  # metres from a junction where cars leaving along a crossing street stop
 WALKER_QUEUE_SPACING = 1.2  # metres between walkers waiting at a junction (2-sigma body length + gap)
@@ -99,13 +156,15 @@ class AgentList:
     parked: list
     rider: list
     shift: list  # (lateral change d metres, start s, duration s) of a lane change, d = 0 for none
+    path: list  # a Route of its own (turning through a junction), None for the route or a line
 
     @classmethod
     def empty(cls) -> "AgentList":
-        return cls(*([] for _ in range(13)))
+        return cls(*([] for _ in range(14)))
 
     def add(self, category, size, *, p0, offset=0.0, line=None, speed=0.0, accel=0.0, direction=1,
-            p_range=(-np.inf, np.inf), yaw_offset=0.0, parked=False, rider=False, shift=(0.0, 0.0, 1.0)) -> None:
+            p_range=(-np.inf, np.inf), yaw_offset=0.0, parked=False, rider=False, shift=(0.0, 0.0, 1.0),
+            path=None) -> None:
         self.category.append(category)
         self.size.append(np.asarray(size, dtype=float))
         self.path_line.append(line)
@@ -119,6 +178,7 @@ class AgentList:
         self.parked.append(parked)
         self.rider.append(rider)
         self.shift.append(shift)
+        self.path.append(path)
 
 
 @dataclass(frozen=True)
@@ -139,6 +199,7 @@ class Agents:
     parked: np.ndarray  # (N,) bool
     rider: np.ndarray  # (N,) bool: cycles carrying a rider
     shift: np.ndarray  # (N,3) lane change: lateral change d (m, 0 for none), start time, duration (s)
+    path: np.ndarray  # (N,) object: a Route of the agent's own (offset 0, travelled forwards), or None
 
     @classmethod
     def from_list(cls, agents: AgentList) -> "Agents":
@@ -159,10 +220,16 @@ class Agents:
             parked=np.array(agents.parked, dtype=bool),
             rider=np.array(agents.rider, dtype=bool),
             shift=np.array(agents.shift, dtype=float).reshape(n, 3),
+            path=_object_array(agents.path),
         )
 
     def __len__(self) -> int:
         return len(self.category)
+
+    @cached_property
+    def _own_path_rows(self) -> np.ndarray:
+        """Rows of the agents on a path of their own (computed once per instance)."""
+        return np.flatnonzero([path is not None for path in self.path])
 
     def path_position(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Path coordinate (N,) and speed along the path (N,) m/s at time ``t`` seconds."""
@@ -189,6 +256,10 @@ class Agents:
         xy_line = self.line[:, :2] + p[:, None] * np.stack([np.cos(heading_line), np.sin(heading_line)], axis=1)
         xy = np.where(self.on_line[:, None], xy_line, xy_route)
         heading = np.where(self.on_line, heading_line, heading_route + steer)
+        for k in self._own_path_rows:
+            # Turning through a junction on a path of its own: a centreline at offset 0
+            # (offset 0 and no lane change, so its speed along the path is already right).
+            xy[k, 0], xy[k, 1], heading[k] = self.path[k].point(float(p[k]))
         yaw = heading + np.where(self.direction < 0, np.pi, 0.0) + self.yaw_offset
         yaw = np.mod(yaw + np.pi, 2 * np.pi) - np.pi
         center = np.column_stack([xy, self.size[:, 2] / 2])
@@ -249,6 +320,13 @@ class EgoDrive:
         return xy, heading + np.arctan2(d_rate, along)
 
 
+def _object_array(values: list) -> np.ndarray:
+    """A 1-D object array of ``values`` (numpy would build a 2-D array of sequences)."""
+    array = np.empty(len(values), dtype=object)
+    array[:] = values
+    return array
+
+
 def lateral_offset(offset: np.ndarray, shift: np.ndarray, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Offset d (N,) and its rate (N,) m/s at time ``t`` (scalar or (N,)) of paths at ``offset`` (N,) with lane
     changes ``shift`` (N,3): a smoothstep from ``offset`` to ``offset + change`` over the
@@ -286,10 +364,13 @@ def plan_scene(rng: np.random.Generator, drive_side: int) -> ScenePlan:
     turn = bool(rng.random() < TURN_SHARE)
     ego_speed, ego_accel = _ego_speed_profile(rng, turn)
     travel = ego_speed * SCENE_SECONDS + 0.5 * ego_accel * SCENE_SECONDS**2
+    lanes = int(rng.choice([1, 2, 3], p=LANES_PER_DIRECTION_SHARES))
+    arterial = lanes == 3 and not turn  # the ego turns at town junctions, not off an arterial
     section = CrossSection(
-        lanes_per_direction=int(rng.choice([1, 2], p=[0.55, 0.45])),
+        lanes_per_direction=lanes if arterial or lanes < 3 else 2,
         parking=bool(rng.random() < 0.75),
         drive_side=drive_side,
+        median=float(rng.uniform(*MEDIAN_WIDTH)) if arterial else 0.0,
     )
     if turn:
         route, junctions = _turning_route(rng, travel)
@@ -306,18 +387,23 @@ def plan_scene(rng: np.random.Generator, drive_side: int) -> ScenePlan:
     roadworks = section.parking and bool(rng.random() < ROADWORKS_SHARE)
 
     agents = AgentList.empty()
-    blocked = _place_roadworks(agents, rng, street, ego) if roadworks else []
+    works = _place_roadworks(agents, rng, street, ego) if roadworks else []
+    crossing: list[int] = []
+    driveways = _place_driveways(agents, rng, street, ego, crossing)
+    blocked = works + driveways
     _place_lane_traffic(agents, rng, street, ego, ego_lane, busyness, max_speed=TURN_ROAD_SPEED if turn else 14.0)
     _place_parked_vehicles(agents, rng, street, busyness, blocked)
     _place_car_park_cars(agents, rng, street, busyness)
     _place_cyclists(agents, rng, street, busyness)
     _place_pedestrians(agents, rng, street, busyness)
-    _place_crossing_traffic(agents, rng, street, busyness)
-    buildings = _place_buildings(rng, street)
-    ego_lane_change = (not turn and section.lanes_per_direction == 2 and ego_speed > 0
+    crossing += _place_crossing_traffic(agents, rng, street, busyness)
+    _turn_off_route(agents, rng, street, crossing)
+    buildings = _place_buildings(rng, street, driveways)
+    ego_lane_change = (not turn and section.lanes_per_direction >= 2 and ego_speed > 0
                        and bool(rng.random() < EGO_LANE_CHANGE_SHARE))
-    ego, moving = plan_manoeuvres(rng, street, ego, Agents.from_list(agents), ego_lane_change, SCENE_SECONDS)
-    return ScenePlan(street, ego, moving, buildings, busyness, bool(blocked))
+    placed = _drop_junction_conflicts(Agents.from_list(agents), crossing, street, ego, rng)
+    ego, moving = plan_manoeuvres(rng, street, ego, placed, ego_lane_change, SCENE_SECONDS)
+    return ScenePlan(street, ego, moving, buildings, busyness, bool(works))
 
 
 def _ego_speed_profile(rng: np.random.Generator, turn: bool) -> tuple[float, float]:
@@ -381,7 +467,8 @@ def _turning_route(rng: np.random.Generator, travel: float) -> tuple[Route, tupl
 
 
 def _intersections(rng: np.random.Generator, route: Route, start: float, stop: float) -> tuple[Intersection, ...]:
-    """Crossing streets on straight stretches, now and then (about one every 180 m)."""
+    """Crossing streets on straight stretches, now and then (about one every 140 m); a share
+    ``SIDE_STREET_SHARE`` of them are side streets on one side of the route only."""
     found = []
     s = start + float(rng.uniform(0.0, 120.0))
     while s < stop:
@@ -389,18 +476,20 @@ def _intersections(rng: np.random.Generator, route: Route, start: float, stop: f
         on_straight = route.curvatures[segment] == 0.0 and (
             route.starts[segment] + 25.0 < s < route.starts[segment] + route.lengths[segment] - 25.0
         )
+        side_street = bool(rng.random() < SIDE_STREET_SHARE)
+        arms = (int(rng.choice([-1, 1])),) if side_street else (-1, 1)
         if on_straight:
             xy, heading = route.pose(np.array([s]))
-            found.append(Intersection(s, xy[0], float(heading[0] + np.pi / 2)))
-        s += float(rng.uniform(120.0, 260.0))
+            found.append(Intersection(s, xy[0], float(heading[0] + np.pi / 2), arms=arms, side_street=side_street))
+        s += float(rng.uniform(*JUNCTION_SPACING))
     return tuple(found)
 
 
 def _vehicle_category(rng: np.random.Generator, moving: bool) -> str:
     if moving:
         return str(rng.choice(["vehicle.car", "vehicle.truck", "vehicle.bus.rigid", "vehicle.motorcycle"],
-                              p=[0.73, 0.16, 0.09, 0.02]))
-    return str(rng.choice(["vehicle.car", "vehicle.truck", "vehicle.motorcycle"], p=[0.81, 0.17, 0.02]))
+                              p=[0.773, 0.16, 0.04, 0.027]))
+    return str(rng.choice(["vehicle.car", "vehicle.truck", "vehicle.motorcycle"], p=[0.803, 0.17, 0.027]))
 
 
 def _fill_line(rng: np.random.Generator, start: float, stop: float, gap_mean: float, first_gap: float = 0.0,
@@ -441,7 +530,7 @@ def _place_lane_traffic(agents: AgentList, rng, street: Street, ego: EgoDrive, e
                     agents.add(category, size, p0=position, offset=section.lane_center(lane, direction),
                                speed=speed, accel=accel, direction=direction,
                                rider=category == "vehicle.motorcycle")
-                position += size[1] / 2 + 2.5 + float(rng.exponential(32.0 / busyness))
+                position += size[1] / 2 + 2.5 + float(rng.exponential(LANE_GAP / busyness))
 
 
 def _place_parked_vehicles(agents: AgentList, rng, street: Street, busyness: float, blocked: list) -> None:
@@ -457,7 +546,7 @@ def _place_parked_vehicles(agents: AgentList, rng, street: Street, busyness: flo
             position += size[1] / 2
             free = not street.near_intersection(np.array([position]), margin=size[1] / 2 + 8.0)[0]
             free &= not any(lo - size[1] / 2 < position < hi + size[1] / 2 for s, lo, hi in blocked if s == side)
-            if free and rng.random() < 0.2 * busyness + 0.06:
+            if free and rng.random() < PARKED_SHARE * (busyness + 0.3):
                 # Parked with the flow of their side of the road, a few the other way round.
                 with_flow = -side * section.drive_side
                 direction = with_flow if rng.random() < 0.9 else -with_flow
@@ -514,14 +603,14 @@ def _place_cyclists(agents: AgentList, rng, street: Street, busyness: float) -> 
         side = -section.drive_side * direction
         offset = side * (section.bike_lane_inner + 0.75)
         speed = float(np.clip(rng.normal(4.0, 1.0), 2.0, 7.0))
-        for position in _fill_line(rng, 0.0, street.route.length, 3500.0 / busyness, float(rng.uniform(0, 1800))):
+        for position in _fill_line(rng, 0.0, street.route.length, RIDER_GAP / busyness, float(rng.uniform(0, 1800))):
             category = "vehicle.bicycle" if rng.random() < 0.9 else "vehicle.motorcycle"
             size = sample_size(category, rng)
             size[2] = max(size[2], 1.55)  # the box includes the rider
             agents.add(category, size, p0=position, offset=offset, speed=speed, direction=direction, rider=True)
     # Parked bicycles at the kerb, across the pavement edge.
     for side in (+1, -1):
-        for position in _fill_line(rng, 0.0, street.route.length, 7000.0, float(rng.uniform(0, 2400))):
+        for position in _fill_line(rng, 0.0, street.route.length, PARKED_BICYCLE_GAP, float(rng.uniform(0, 2400))):
             size = sample_size("vehicle.bicycle", rng)
             size[2] = min(size[2], 1.15)
             if not _in_spans(position, spans, margin=1.0):
@@ -542,7 +631,7 @@ def _place_pedestrians(agents: AgentList, rng, street: Street, busyness: float) 
             speed = float(np.clip(rng.normal(1.35, 0.15), 0.9, 1.8))
             offset = side * (section.kerb + inset)
             waiting: dict[float, int] = {}  # junction edge -> walkers already queued there
-            positions = list(_fill_line(rng, 0.0, length, 125.0 / busyness, float(rng.uniform(0, 100))))
+            positions = list(_fill_line(rng, 0.0, length, WALKER_GAP / busyness, float(rng.uniform(0, 100))))
             for position in (positions if direction < 0 else positions[::-1]):  # front of the queue first
                 category = "human.pedestrian.child" if rng.random() < 0.03 else "human.pedestrian.adult"
                 size = sample_size(category, rng)
@@ -556,7 +645,7 @@ def _place_pedestrians(agents: AgentList, rng, street: Street, busyness: float) 
                 p_range = (lo, hi - shift) if direction > 0 else (lo + shift, hi)
                 agents.add(category, size, p0=position, offset=offset, speed=speed, direction=direction,
                            p_range=p_range)
-        for position in _fill_line(rng, 0.0, length, 180.0 / busyness, float(rng.uniform(0, 100))):
+        for position in _fill_line(rng, 0.0, length, STANDING_GAP / busyness, float(rng.uniform(0, 100))):
             category = "human.pedestrian.adult"
             offset = side * (section.kerb + PAVEMENT_WIDTH - 0.2)
             size = sample_size(category, rng)
@@ -564,14 +653,165 @@ def _place_pedestrians(agents: AgentList, rng, street: Street, busyness: float) 
                 agents.add(category, size, p0=position, offset=offset, yaw_offset=float(rng.uniform(-np.pi, np.pi)))
 
 
-def _place_crossing_traffic(agents: AgentList, rng, street: Street, busyness: float) -> None:
-    """Traffic on every arm of the crossing streets while the route has the green light:
-    a queue at the stop line, cars arriving at its tail, and cars driving away from the
-    junction (those that crossed or turned on the previous phase)."""
+def _place_crossing_traffic(agents: AgentList, rng, street: Street, busyness: float) -> list:
+    """Traffic on every arm of the crossing streets. Where the route turns, and on the arms
+    of a straight-across junction that wait (1 - ``FLOWING_ARM_SHARE``), a queue at the stop
+    line and cars arriving at its tail; on the other arms of a straight-across junction a
+    stream that drives through the junction, ``TURN_IN_SHARE`` of it turning onto the route.
+    Every arm has cars driving away from the junction (those that crossed or turned before,
+    and the stream that goes through). Returns the rows of the road users that cross or join
+    the route's carriageway: :func:`_drop_junction_conflicts` keeps those that meet nobody."""
+    crossing: list[int] = []
     for intersection in street.intersections:
+        flowing = {arm: intersection.through and bool(rng.random() < FLOWING_ARM_SHARE) for arm in intersection.arms}
+        speeds = {arm: float(np.clip(rng.normal(6.0, 1.5), 3.5, 8.0)) for arm in intersection.arms if flowing[arm]}
+        through: dict[int, list] = {}
         for arm in intersection.arms:
-            _place_arriving_queue(agents, rng, street, intersection, arm, busyness)
-            _place_departing_lane(agents, rng, street, intersection, arm, busyness)
+            if flowing[arm] and -arm not in intersection.arms:  # a side street: every car turns
+                _place_flowing_arm(agents, rng, street, intersection, arm, busyness, speeds[arm], crossing,
+                                   turn_share=1.0)
+            elif flowing[arm]:
+                through[-arm] = _place_flowing_arm(agents, rng, street, intersection, arm, busyness, speeds[arm],
+                                                   crossing)
+            else:
+                _place_arriving_queue(agents, rng, street, intersection, arm, busyness)
+        for arm in intersection.arms:
+            _place_departing_lane(agents, rng, street, intersection, arm, busyness, speed=speeds.get(-arm),
+                                  upstream=through.get(arm, []), crossing=crossing)
+    return crossing
+
+
+def _place_flowing_arm(agents: AgentList, rng, street: Street, intersection: Intersection, arm: int,
+                       busyness: float, speed: float, crossing: list, turn_share: float = TURN_IN_SHARE) -> list:
+    """Cars arriving along ``arm`` at one shared ``speed`` that reach the junction during the
+    scene: those that turn onto the route are added here (paths of their own); those that go
+    straight on are returned as (category, size, distance from the junction centre) for the
+    departing lane of the opposite arm, which they share."""
+    section = street.section
+    radius = turn_radius(speed)
+    arm_lane = section.drive_side * arm * LANE_WIDTH / 2  # the arriving lane (_arm_line, direction -arm)
+    through = []
+    distance = section.pavement_outer + float(rng.uniform(0.0, 30.0))
+    while distance < min(speed * (SCENE_SECONDS - 2.0), ARM_LENGTH - 20.0):
+        category = _vehicle_category(rng, moving=True)
+        size = sample_size(category, rng)
+        distance += size[1] / 2
+        if rng.random() < turn_share:
+            direction = int(rng.choice([-1, 1]))
+            near_side = arm * direction * section.drive_side < 0  # a turn towards the kerb
+            lane = section.lanes_per_direction - 1 if near_side else 0
+            d = section.lane_center(lane, direction)
+            s_end = street.route.length + 50.0 if direction > 0 else -50.0
+            path, _ = turn_onto_route(street.route, intersection, arm, arm_lane, direction, d, radius, s_end)
+            crossing.append(len(agents.category))
+            agents.add(category, size, p0=ARM_LENGTH - distance, speed=speed, path=path,
+                       rider=category == "vehicle.motorcycle")
+        else:
+            through.append((category, size, distance))
+        distance += size[1] / 2 + 2.5 + float(rng.exponential(30.0 / busyness))
+    return through
+
+
+def _place_driveways(agents: AgentList, rng, street: Street, ego: EgoDrive, crossing: list) -> list:
+    """Cars waiting in driveways beside the ego's drive, nose to the road just behind the
+    pavement, that pull out during the scene and turn into the near or far lane (stopped,
+    driver on board, until they go). Returns [(side, s_min, s_max)] of the driveways, kept
+    free of kerb-side parking and buildings. The cars' rows are added to ``crossing``."""
+    section = street.section
+    travel = ego.speed * SCENE_SECONDS + 0.5 * ego.accel * SCENE_SECONDS**2
+    spans = _turn_spans(street)
+    driveways = []
+    for _ in range(int(rng.poisson(DRIVEWAYS_PER_SCENE))):
+        side = int(rng.choice([-1, 1]))
+        s = float(rng.uniform(ego.s0 - 30.0, ego.s0 + travel + 30.0))
+        direction = int(rng.choice([-1, 1]))
+        speed = float(rng.uniform(3.0, 5.0))
+        wait = float(rng.uniform(0.0, 14.0))
+        category = "vehicle.car"
+        size = sample_size(category, rng)
+        around = np.linspace(s - 30.0, s + 30.0, 13)
+        clear = (np.all(street.route.curvature_at(around) == 0.0) and 30.0 < s < street.route.length - 30.0
+                 and not street.near_intersection(np.array([s]), margin=15.0)[0]
+                 and not _in_spans(s, spans, margin=15.0)
+                 and not any(p.side == side and p.s0 - 6.0 < s < p.s1 + 6.0 for p in street.car_parks)
+                 and not any(d_side == side and lo - 6.0 < s < hi + 6.0 for d_side, lo, hi in driveways))
+        if not clear:
+            continue
+        near_side = side * direction * section.drive_side < 0  # a turn towards the kerb
+        d = section.lane_center(section.lanes_per_direction - 1 if near_side else 0, direction)
+        xy, heading = street.route.pose(np.array([s]))
+        mouth = Intersection(s, xy[0], float(heading[0] + np.pi / 2), arms=(side,), side_street=True)
+        start = section.pavement_outer + 0.3 + size[1] / 2  # the car's centre, from the centreline
+        s_end = street.route.length + 50.0 if direction > 0 else -50.0
+        path, _ = turn_onto_route(street.route, mouth, side, 0.0, direction, d, turn_radius(speed), s_end,
+                                  arm_length=start)
+        crossing.append(len(agents.category))
+        agents.add(category, size, p0=-speed * wait, speed=speed, path=path, p_range=(0.0, np.inf))
+        driveways.append((side, s - 3.5, s + 3.5))
+    return driveways
+
+
+def _turn_off_route(agents: AgentList, rng, street: Street, crossing: list) -> None:
+    """Moving vehicles in the route's lanes that reach a straight-across junction during the
+    scene turn into the crossing street (``TURN_OFF_SHARE`` of them), at their own speed."""
+    section = street.section
+    junctions = [i for i in street.intersections if i.through]
+    if not junctions:
+        return
+    junction_s = np.array([i.s for i in junctions])
+    for row, category in enumerate(agents.category):
+        speed, offset = agents.speed[row], agents.offset[row]
+        lane_vehicle = (category in ("vehicle.car", "vehicle.truck", "vehicle.motorcycle")
+                        and agents.path_line[row] is None and agents.path[row] is None and not agents.parked[row]
+                        and agents.accel[row] == 0.0 and 2.0 < speed <= TURN_ROAD_SPEED
+                        and abs(offset) < section.bike_lane_inner
+                        and abs(offset - section.lane_center(int(section.lane_of(np.array([offset]))[0]),
+                                                             int(agents.direction[row]))) < 1e-6)
+        if not lane_vehicle or rng.random() >= TURN_OFF_SHARE:
+            continue
+        direction = int(agents.direction[row])
+        p0 = agents.p0[row]
+        arrival = (junction_s - p0) * direction / speed
+        ahead = np.flatnonzero((arrival > 2.0) & (arrival < SCENE_SECONDS - 3.0))
+        if len(ahead) == 0:
+            continue
+        junction = junctions[int(ahead[np.argmin(arrival[ahead])])]
+        arm = int(rng.choice(junction.arms))
+        arm_lane = -section.drive_side * arm * LANE_WIDTH / 2  # the departing lane (_arm_line, direction arm)
+        path, length = turn_off_route(street.route, junction, p0, direction, offset, arm, arm_lane,
+                                      turn_radius(speed))
+        agents.path[row] = path
+        agents.p0[row], agents.direction[row], agents.offset[row] = 0.0, 1, 0.0
+        agents.p_range[row] = (-np.inf, length - agents.size[row][1] / 2)
+        crossing.append(row)
+
+
+def _drop_junction_conflicts(agents: Agents, rows: list, street: Street, ego: EgoDrive,
+                             rng: np.random.Generator) -> Agents:
+    """The agents with the road users of ``rows`` (crossing or joining the route at a junction
+    or from a driveway) kept clear of everyone: one whose body comes within ``CLEARANCE`` of
+    another road user's or the ego's at any instant of the scene (checked every
+    ``JUNCTION_CHECK_STEP`` s) gives way, i.e. comes 1.5-5 s later along its path, up to
+    ``GIVE_WAY_TRIES`` times; after that it is left out, so every track stays collision-free."""
+    if not rows:
+        return agents
+    rows = np.array(sorted(set(rows)))
+    times = np.arange(0.0, SCENE_SECONDS + 1e-9, JUNCTION_CHECK_STEP)
+    checked = rows
+    clash = np.zeros(len(agents), bool)
+    for attempt in range(GIVE_WAY_TRIES + 1):
+        found = (closest_approach(agents, street, checked, times, ego) < CLEARANCE).any(axis=1)
+        clash[:] = False
+        clash[checked[found]] = True
+        if not found.any() or attempt == GIVE_WAY_TRIES:
+            break
+        late = checked[found]
+        p0 = agents.p0.copy()
+        p0[late] -= agents.direction[late] * agents.speed[late] * rng.uniform(1.5, 5.0, len(late))
+        agents = replace(agents, p0=p0)
+        # Only the moved road users can have new conflicts (with anyone, moved or not).
+        checked = late
+    return without(agents, clash)
 
 
 def _arm_line(street: Street, intersection: Intersection, arm: int, direction: int) -> tuple[float, float, float]:
@@ -606,25 +846,31 @@ def _place_arriving_queue(agents: AgentList, rng, street: Street, intersection: 
 
 
 def _place_departing_lane(agents: AgentList, rng, street: Street, intersection: Intersection, arm: int,
-                          busyness: float) -> None:
-    """Cars driving away from the junction along ``arm`` at one shared speed. They stop
-    (clipped paths) from 120 m out backwards, front car first, before they could meet
-    anything the crossing street does not hold."""
+                          busyness: float, speed: float | None = None, upstream: list = (),
+                          crossing: list | None = None) -> None:
+    """Cars driving away from the junction along ``arm`` at one shared speed, behind them
+    the ``upstream`` cars (category, size, distance before the junction centre) of a flowing
+    opposite arm that go straight through at the same ``speed``. They stop (clipped paths)
+    from 120 m out backwards, front car first, before they could meet anything the
+    crossing street does not hold. The rows of the through cars are added to ``crossing``."""
     line = _arm_line(street, intersection, arm, direction=arm)
-    speed = float(np.clip(rng.normal(6.6, 2.0), 3.0, 11.0))
+    if speed is None:
+        speed = float(np.clip(rng.normal(6.6, 2.0), 3.0, 11.0))
     position = street.section.pavement_outer + 2.0
-    cars = []
+    cars = [(category, size, -distance, True) for category, size, distance in reversed(upstream)]
     for _ in range(int(rng.poisson(2.0 * busyness))):
         category = _vehicle_category(rng, moving=True)
         size = sample_size(category, rng)
         position += float(rng.exponential(30.0 / busyness)) + size[1] / 2
-        cars.append((category, size, position))
+        cars.append((category, size, position, False))
         position += size[1] / 2 + 2.5
     stop = DEPARTURE_STOP  # where the rear of the car ahead stops
-    for category, size, position in reversed(cars):
+    for category, size, position, crosses in reversed(cars):
         center = stop - size[1] / 2
         if position < center:
             p_range = (-np.inf, center) if arm > 0 else (-center, np.inf)
+            if crosses and crossing is not None:
+                crossing.append(len(agents.category))
             agents.add(category, size, p0=arm * position, line=line, direction=arm, speed=speed,
                        p_range=p_range, rider=category == "vehicle.motorcycle")
             stop = center - size[1] / 2 - 2.0
@@ -690,9 +936,9 @@ def _free_stretch(street: Street, s: float) -> tuple[float, float]:
     return lo, hi
 
 
-def _place_buildings(rng: np.random.Generator, street: Street) -> tuple[Building, ...]:
+def _place_buildings(rng: np.random.Generator, street: Street, driveways: list = ()) -> tuple[Building, ...]:
     """Blocks along both sides, set back from the pavement (and behind the car parks), none
-    across a crossing street."""
+    across a crossing street or a driveway ((side, s_min, s_max) each)."""
     buildings = []
     route = street.route
     for side in (+1, -1):
@@ -701,7 +947,10 @@ def _place_buildings(rng: np.random.Generator, street: Street) -> tuple[Building
             frontage = float(rng.uniform(8.0, 30.0))
             depth = float(rng.uniform(8.0, 16.0))
             center_s = position + frontage / 2
-            if not street.near_intersection(np.array([center_s]), margin=frontage / 2 + PAVEMENT_WIDTH + 2.0)[0]:
+            on_driveway = any(d_side == side and lo - frontage / 2 < center_s < hi + frontage / 2
+                              for d_side, lo, hi in driveways)
+            if not on_driveway and not street.near_intersection(np.array([center_s]),
+                                                                margin=frontage / 2 + PAVEMENT_WIDTH + 2.0)[0]:
                 setback = float(rng.uniform(0.5, 4.0)) + _car_park_depth(street, side, center_s, frontage)
                 d = side * (street.section.pavement_outer + setback + depth / 2)
                 xy, heading = route.pose(np.array([center_s]), d)

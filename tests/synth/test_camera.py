@@ -164,6 +164,20 @@ def test_objects_cast_shadows_on_the_ground_and_scenery_does_not():
     assert abs(image[shadow].mean() - image[lit].mean()) < 3
 
 
+def test_scenery_casts_shadows_where_the_caller_says_so():
+    """Street clutter (owner -1, like buildings) casts a shadow when ``casts_shadow`` marks it."""
+    def render_overhead_sun(casts):
+        return render_camera(cube(owner=-1), [], flat_ground, K, CAM_TO_WORLD, W, H, CameraStyle(),
+                             np.array([0.0, 0.0, 1.0]), 1, np.random.default_rng(0),
+                             casts_shadow=casts).image.astype(float)
+    shadow, lit = np.s_[74:77, 72:88], np.s_[74:77, 10:30]
+    n_parts = len(cube(owner=-1).owner)
+    image = render_overhead_sun(np.ones(n_parts, bool))
+    assert image[shadow].mean() < image[lit].mean() - 20
+    image = render_overhead_sun(np.zeros(n_parts, bool))
+    assert abs(image[shadow].mean() - image[lit].mean()) < 3
+
+
 def test_sensor_noise_has_the_style_standard_deviation():
     clean = render(cube(), style=CameraStyle()).image.astype(float)
     noisy = render(cube(), style=CameraStyle(noise_std=0.01), seed=5).image.astype(float)

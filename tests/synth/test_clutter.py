@@ -6,6 +6,7 @@ from sianms_cli.synth.appearance import CLUTTER_KINDS, CameraStyle, sample_appea
 from sianms_cli.synth.camera import render_camera
 from sianms_cli.synth.clutter import KERB_STRIP, place_clutter, road_user_boxes
 from sianms_cli.synth.lidar import scan_lidar
+from sianms_cli.synth.road import CrossSection, Intersection, Route, Street
 from sianms_cli.synth.shapes import Parts, concat_parts, object_parts, place_parts
 from sianms_cli.synth.world import SCENE_SECONDS, plan_scene
 
@@ -153,3 +154,20 @@ def test_a_tree_occludes_a_car_in_the_image():
     assert clear.visible_pixels[0] > 100
     assert hidden.object_pixels[0] == clear.object_pixels[0]
     assert hidden.visible_pixels[0] < 0.9 * clear.visible_pixels[0]
+
+
+def test_signals_stand_at_the_corners_of_a_turning_junction_once():
+    """Where the route turns, the corners lie half a metre beyond the turn (the junction's
+    half_span), and a 4-way junction's two crossing streets share one set of signals."""
+    route = Route(np.zeros(2), 0.0, np.array([100.0, 15.0 * np.pi / 2, 100.0]), np.array([0.0, 1 / 15, 0.0]))
+    s, half_span = 100.0 + 15.0 * np.pi / 4, 15.0 * np.pi / 4 + 2.0
+    corner = np.array([115.0, 0.0])  # where the incoming and outgoing centrelines meet
+    junctions = (Intersection(s, corner, np.pi / 2, arms=(-1,), half_span=half_span),
+                 Intersection(s, corner, 0.0, arms=(1,), half_span=half_span))
+    street = Street(route, CrossSection(1, True, 1), junctions, center_line_yellow=True)
+    clutter = place_clutter(street, np.random.default_rng(0))
+    signals = np.flatnonzero(clutter.kind == "traffic_light")
+    assert len(signals) == 4
+    centres = np.stack([clutter.parts.center[clutter.item == i, :2].mean(axis=0) for i in signals])
+    along, _ = route.to_route_frame(centres)
+    np.testing.assert_allclose(np.sort(np.abs(along - s)), half_span + 0.5, atol=0.6)

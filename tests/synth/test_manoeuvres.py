@@ -1,10 +1,10 @@
 import numpy as np
 import pytest
 
-from sianms_cli.synth.manoeuvres import CLEARANCE, _closest_approach
+from sianms_cli.synth.manoeuvres import CLEARANCE, closest_approach
 from sianms_cli.synth.world import SCENE_SECONDS, lateral_offset, plan_scene
 
-VARIED = (0, 1, 2, 3, 16, 36, 38)  # ego lane changes (0, 2), lane changes, a pull-out (16), a pull-in (1)
+VARIED = (0, 1, 2, 3, 15, 36, 38)  # ego lane changes (0, 2), lane changes, a pull-out (2), a pull-in (15)
 
 
 @pytest.fixture(scope="module")
@@ -27,7 +27,9 @@ def _kinds(plan) -> list[str]:
 def test_every_manoeuvre_appears(plans):
     kinds = {kind for plan in plans.values() for kind in _kinds(plan)}
     assert kinds == {"lane", "out", "in"}
-    assert plans[0].ego.shift[0] == pytest.approx(-3.5) and plans[2].ego.shift[0] == pytest.approx(-3.5)
+    # The ego moves one lane, on seed 0's 3-lane arterial and on seed 2's 2-lane street.
+    assert abs(plans[0].ego.shift[0]) == pytest.approx(3.5) and abs(plans[2].ego.shift[0]) == pytest.approx(3.5)
+    assert plans[0].street.section.lanes_per_direction == 3
 
 
 def test_lateral_offset_is_a_smoothstep_with_zero_sideways_speed_at_its_ends():
@@ -73,12 +75,12 @@ def test_manoeuvres_keep_their_clearance_all_scene(plans):
     times = np.arange(0.0, SCENE_SECONDS + 1e-9, 0.05)  # finer than the planner's 0.2 s check
     for plan in plans.values():
         rows = np.flatnonzero(plan.agents.shift[:, 0] != 0.0)
-        clearance = _closest_approach(plan.agents, plan.street, np.append(rows, len(plan.agents)), times, plan.ego)
+        clearance = closest_approach(plan.agents, plan.street, np.append(rows, len(plan.agents)), times, plan.ego)
         assert clearance.min() > CLEARANCE - 0.3  # what 0.05 s can add between two 0.2 s checks
 
 
 def test_pulling_out_cars_are_stopped_until_they_go(plans):
-    plan = plans[16]
+    plan = plans[2]
     agents = plan.agents
     out = np.flatnonzero((agents.shift[:, 0] != 0.0) & np.isfinite(agents.p_range).any(axis=1))
     start = agents.shift[out, 1]

@@ -173,3 +173,10 @@ def test_value_noise_is_continuous_and_bounded():
     assert noise.min() >= 0.0 and noise.max() <= 1.0
     assert np.max(np.abs(np.diff(noise))) < 0.01  # no jumps between 1 mm steps
     assert noise.std() > 0.05
+
+
+def test_a_single_point_of_a_route_is_its_pose():
+    route = Route(np.array([3.0, 4.0]), 0.7, np.array([50.0, 20.0, 30.0, 10.0]), np.array([0.0, 0.05, -0.1, 0.0]))
+    for s in (-5.0, 0.0, 10.0, 50.0, 60.0, 75.0, 99.0, 120.0):  # before, on and beyond every segment
+        xy, heading = route.pose(np.array([s]))
+        np.testing.assert_allclose(route.point(s), (xy[0, 0], xy[0, 1], heading[0]), atol=1e-9)
