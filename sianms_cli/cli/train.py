@@ -91,11 +91,15 @@ def siamese_cli(
     hidden: str = typer.Option("256", help="Widths of the hidden fully connected layers."),
     alpha: float = typer.Option(1.0, help="Positive margin of eq. (6)."),
     beta: float = typer.Option(3.0, help="Negative margin of eq. (6)."),
-    lr: float = typer.Option(1e-4, help="Adam learning rate."),
+    lr: float = typer.Option(1e-4, help="Adam learning rate (paper: 1e-4; the synthetic demo: 1e-3)."),
     lr_decay: float = typer.Option(0.1, help="Learning-rate factor every --lr-step epochs."),
     lr_step: int = typer.Option(8, help="Epochs between learning-rate decays."),
-    epochs: int = typer.Option(25, help="Epochs (one epoch takes every reference instance once)."),
+    epochs: int = typer.Option(25, help="Epochs, each takes every reference instance once (paper: 25; "
+                                        "the synthetic demo: 12)."),
     batch_size: int = typer.Option(8, help="Reference instances per step (N)."),
+    standardize: bool = typer.Option(False, "--standardize/--no-standardize",
+                                     help="Standardise each input channel with the training cache's mean and std "
+                                          "(kept in the checkpoint; not in the paper)."),
     seed: int = SEED,
     device: str = DEVICE,
     threads: Optional[int] = THREADS,
@@ -116,7 +120,7 @@ def siamese_cli(
         cache=str(cache), val_cache=None if val_cache is None else str(val_cache), dim=dim,
         conv_channels=_widths(conv_channels, "--conv-channels"), hidden=_widths(hidden, "--hidden"),
         alpha=alpha, beta=beta, lr=lr, lr_decay=lr_decay, lr_step=lr_step, epochs=epochs, batch_size=batch_size,
-        seed=seed, device=device)
+        seed=seed, device=device, standardize=standardize)
 
     def report_epoch(row: dict[str, Any]) -> None:
         if quiet:
@@ -186,6 +190,11 @@ def fpointnet_cli(
     decay_rate: float = typer.Option(0.5, help="Learning-rate factor per step."),
     box_weight: float = typer.Option(1.0, help="Weight of the box terms (λ)."),
     corner_weight: float = typer.Option(10.0, help="Weight of the corner loss inside λ."),
+    multiview: bool = typer.Option(False, "--multiview", help="Also train on the union frustum of every cache pair "
+                                                              "on the multi-frustum axis, as siaNMS feeds it."),
+    dataroot: Optional[Path] = typer.Option(None, help="With --multiview: the dataroot the cache was prepared from "
+                                                       "(its LiDAR)."),
+    max_distance: float = typer.Option(50.0, help="With --multiview: radius of the multi-frustum circle, metres."),
     seed: int = SEED,
     device: str = DEVICE,
     threads: Optional[int] = THREADS,
@@ -194,7 +203,8 @@ def fpointnet_cli(
     quiet: bool = QUIET,
     as_json: bool = AS_JSON,
 ) -> None:
-    """Train Frustum PointNets v1 (Qi et al., CVPR 2018) on the cache's single-camera frustums."""
+    """Train Frustum PointNets v1 (Qi et al., CVPR 2018) on the cache's single-camera frustums
+    (and, with --multiview, the union frustums of its cross-camera pairs)."""
     from sianms_cli.training.fpointnet import FPointNetConfig, run
 
     _use_threads(threads)
@@ -203,7 +213,8 @@ def fpointnet_cli(
         classes=tuple(name.strip() for name in classes.split(",") if name.strip()), num_points=num_points,
         num_object_points=num_object_points, min_box_height=min_box_height, intensity=intensity, flip=flip,
         shift=shift, jitter=jitter, epochs=epochs, batch_size=batch_size, lr=lr, decay_step=decay_step,
-        decay_rate=decay_rate, box_weight=box_weight, corner_weight=corner_weight, seed=seed, device=device)
+        decay_rate=decay_rate, box_weight=box_weight, corner_weight=corner_weight, multiview=multiview,
+        dataroot=None if dataroot is None else str(dataroot), max_distance=max_distance, seed=seed, device=device)
 
     def report_epoch(row: dict[str, Any]) -> None:
         if quiet:

@@ -20,6 +20,11 @@ associated box, at least one point is inside it, and the 2-D box is at least
 "cyclist" is nuScenes' ``bicycle`` (the project's PAPER_CLASSES), and a motorcycle counts
 only when ``classes`` names it. The cache has no rider attribute, so a parked bicycle counts too.
 
+Union frustums (``--multiview``, :mod:`sianms_cli.data.multiview`) are files of the same
+columns, one per cache shard, in a folder of the run; :func:`iterate_batches` appends each
+shard's union frustums to its single ones, so both are sampled, batched and augmented alike,
+and flags them (``union``).
+
 Augmentation (training only, models.md §1.13), on whole batches:
 
 - random flip, p = 0.5: x -> -x for points and centre, heading -> π - heading;
@@ -34,7 +39,7 @@ Augmentation (training only, models.md §1.13), on whole batches:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Iterator
 
@@ -87,7 +92,8 @@ class ShardFrustums:
         labels: (M,) int64.
         center: (F, 3), heading: (F,), lwh: (F, 3) (l, w, h), float64, frustum frame.
         class_index: (F,) int64; score: (F,) float32 (the 2-D detector's); rot_angle: (F,).
-        detection_id: (F,) object array of the cache's ids.
+        detection_id: (F,) object array of the cache's ids (a union's: its reference detection's).
+        union: (F,) bool, a union frustum of a camera pair (``multiview``), not a single camera's.
     """
 
     offsets: np.ndarray
@@ -100,6 +106,7 @@ class ShardFrustums:
     score: np.ndarray
     rot_angle: np.ndarray
     detection_id: np.ndarray
+    union: np.ndarray
 
     def __len__(self) -> int:
         return len(self.class_index)
@@ -134,6 +141,21 @@ def read_shard(path: Path, selection: FrustumSelection) -> ShardFrustums:
     table = pq.read_table(path, columns=FRUSTUM_COLUMNS)
     if selection.min_box_height > 0:
         table = table.filter(pa.array(_box_heights(path, table["detection_id"]) >= selection.min_box_height))
+    return frustums_of_table(table, selection)
+
+
+def read_union_shard(path: Path, selection: FrustumSelection) -> ShardFrustums:
+    """The kept union frustums of one shard (:mod:`sianms_cli.data.multiview`), as :func:`read_shard`'s.
+
+    The file was built for the run's classes and minimum box height (both 2-D boxes of a pair);
+    the same class, box and object-point filters apply again here. Rows are flagged ``union``.
+    """
+    return frustums_of_table(pq.read_table(path, columns=FRUSTUM_COLUMNS), selection, union=True)
+
+
+def frustums_of_table(table: pa.Table, selection: FrustumSelection, union: bool = False) -> ShardFrustums:
+    """The frustums of a table of :data:`FRUSTUM_COLUMNS` that have a class of ``selection``, a box
+    and an object point, converted to F-PointNets' conventions (module docstring)."""
     table = table.filter(pc.and_(pc.is_in(table["class"], pa.array(list(selection.classes))),
                                  pc.is_valid(table["box_center_frustum"])))
     has_points = pc.list_value_length(table["label"]).to_numpy(zero_copy_only=False) > 0
@@ -160,7 +182,18 @@ def read_shard(path: Path, selection: FrustumSelection) -> ShardFrustums:
         score=table["score"].to_numpy().astype(np.float32),
         rot_angle=table["rot_angle"].to_numpy().astype(np.float64),
         detection_id=np.array(table["detection_id"].to_pylist(), dtype=object),
+        union=np.full(len(table), union),
     )
+
+
+def concatenate_shards(parts: list[ShardFrustums]) -> ShardFrustums:
+    """The frustums of several :class:`ShardFrustums` one after the other (at least one part)."""
+    if len(parts) == 1:
+        return parts[0]
+    counts = np.concatenate([np.diff(part.offsets) for part in parts])
+    joined = {field.name: np.concatenate([getattr(part, field.name) for part in parts])
+              for field in fields(ShardFrustums) if field.name != "offsets"}
+    return ShardFrustums(offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64), **joined)
 
 
 def _fixed(column: pa.ChunkedArray, width: int) -> np.ndarray:
@@ -226,16 +259,21 @@ def _rotate_about_y(points: np.ndarray, center: np.ndarray, angle: np.ndarray) -
 
 
 def iterate_batches(cache: str | Path, selection: FrustumSelection, batch_size: int, rng: np.random.Generator,
-                    train: bool, augmentation: Augmentation = Augmentation()) -> Iterator[dict[str, np.ndarray]]:
+                    train: bool, augmentation: Augmentation = Augmentation(),
+                    unions: str | Path | None = None) -> Iterator[dict[str, np.ndarray]]:
     """Batches of frustums, one shard in memory at a time.
 
     Training: shards and the frustums of each shard in random order, augmented; a final
     partial batch is kept unless it holds a single frustum (batch norm needs two).
     Evaluation: cache order, no augmentation, every frustum.
 
+    ``unions``: a folder of union-frustum shards (:func:`sianms_cli.data.multiview.build_union_shards`),
+    one per cache shard under the same name; each shard's union frustums join its single ones
+    (after them, before the shuffle), so they are sampled, batched and augmented alike.
+
     Yields dicts of ``points`` (B, N, C) float32, ``seg`` (B, N), ``center`` (B, 3),
     ``heading`` (B,), ``lwh`` (B, 3), ``class_index`` (B,), ``score`` (B,), ``rot_angle`` (B,),
-    ``detection_id`` (B,).
+    ``detection_id`` (B,), ``union`` (B,) bool.
     """
     paths = frustum_shards(cache)
     if train:
@@ -244,6 +282,11 @@ def iterate_batches(cache: str | Path, selection: FrustumSelection, batch_size: 
     waiting = 0
     for path in paths:
         shard = read_shard(path, selection)
+        if unions is not None:
+            union_path = Path(unions) / path.name
+            if not union_path.is_file():
+                raise DataFormatError(union_path, f"missing: no union frustums for cache shard {path.name}")
+            shard = concatenate_shards([shard, read_union_shard(union_path, selection)])
         order = rng.permutation(len(shard)) if train else np.arange(len(shard))
         for start in range(0, len(order), batch_size):
             rows = order[start:start + batch_size]
@@ -251,7 +294,8 @@ def iterate_batches(cache: str | Path, selection: FrustumSelection, batch_size: 
             pending.append({"points": points, "seg": seg, "center": shard.center[rows].copy(),
                             "heading": shard.heading[rows].copy(), "lwh": shard.lwh[rows],
                             "class_index": shard.class_index[rows], "score": shard.score[rows],
-                            "rot_angle": shard.rot_angle[rows], "detection_id": shard.detection_id[rows]})
+                            "rot_angle": shard.rot_angle[rows], "detection_id": shard.detection_id[rows],
+                            "union": shard.union[rows]})
             waiting += len(rows)
             while waiting >= batch_size:
                 batch, pending, waiting = _take(pending, batch_size)

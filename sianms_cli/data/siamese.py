@@ -161,6 +161,30 @@ def iter_scenes(cache: str | Path, order: np.ndarray | None = None) -> Iterator[
                 yield _scene_from_tables(detections.filter(keep), pairs.filter(keep_pairs), shape, path)
 
 
+def feature_statistics(cache: str | Path) -> tuple[np.ndarray, np.ndarray, int]:
+    """Per-channel mean and standard deviation of a cache's ROI features, and the detections counted.
+
+    Over every detection (labelled or not: the encoder sees all of them at inference) and
+    every ROI cell, streamed scene by scene and summed in float64, so the result does not
+    depend on the scene order. Returns (C,) float64 mean, (C,) float64 std (population), N.
+    """
+    shape = cache_feature_shape(cache)
+    total = np.zeros(shape[0])
+    squares = np.zeros(shape[0])
+    count = 0
+    for path in shard_paths(cache):
+        column = pq.read_table(path, columns=["roi_feature"]).column("roi_feature")
+        features = decode_roi_features(column, shape).astype(np.float64)
+        total += features.sum(axis=(0, 2, 3))
+        squares += np.square(features).sum(axis=(0, 2, 3))
+        count += len(features)
+    if count == 0:
+        raise DataFormatError(Path(cache) / "detections", "no detections: nothing to train on")
+    cells = count * shape[1] * shape[2]
+    mean = total / cells
+    return mean, np.sqrt(np.maximum(squares / cells - mean ** 2, 0.0)), count
+
+
 # --------------------------------------------------------------------------- the pairing
 
 

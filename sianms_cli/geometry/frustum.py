@@ -95,8 +95,9 @@ def _pixels_in_depth(
     return in_depth, u, v
 
 
-def _rays(pixels: np.ndarray, intrinsic: np.ndarray) -> np.ndarray:
+def pixel_rays(pixels: np.ndarray, intrinsic: np.ndarray) -> np.ndarray:
     """(N, 2) pixels -> (N, 3) camera-frame rays scaled to depth 1."""
+    pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
     homogeneous = np.concatenate([pixels, np.ones((len(pixels), 1))], axis=1)
     rays = homogeneous @ np.linalg.inv(np.asarray(intrinsic, dtype=np.float64)).T
     return rays / rays[:, 2:3]
@@ -119,7 +120,7 @@ def frustum_angle(box2d: np.ndarray, intrinsic: np.ndarray) -> np.ndarray:
     """
     box2d = np.asarray(box2d, dtype=np.float64).reshape(-1, 4)
     centers = 0.5 * (box2d[:, :2] + box2d[:, 2:])
-    rays = _rays(centers, intrinsic)
+    rays = pixel_rays(centers, intrinsic)
     return np.pi / 2 - np.arctan2(rays[:, 2], rays[:, 0])
 
 
@@ -174,5 +175,5 @@ def frustum_corners(
         raise SianmsError(f"frustum depths must satisfy 0 <= near < far, got {near}, {far}")
     x1, y1, x2, y2 = np.asarray(box2d, dtype=np.float64)
     pixels = np.array([[x1, y1], [x2, y1], [x2, y2], [x1, y2]])
-    rays = _rays(pixels, intrinsic)
+    rays = pixel_rays(pixels, intrinsic)
     return np.concatenate([near * rays, far * rays], axis=0)

@@ -112,6 +112,24 @@ def scene_records(db: NuScenesDB, scene_token: str, sweeps: int) -> SceneRecords
     )
 
 
+def lidar_points_global(db: NuScenesDB, scene: SceneRecords, position: int) -> tuple[np.ndarray, np.ndarray]:
+    """A sample's key-frame sweep (+ the earlier sweeps of ``scene``) in the global frame.
+
+    Returns:
+        (P, 3) xyz and (P, 2) [intensity, time lag before the key frame (s)].
+    """
+    sweeps = scene.sweeps
+    xyz, extra = [np.zeros((0, 3))], [np.zeros((0, 2))]
+    for k in np.flatnonzero(sweeps.rows[position] >= 0).tolist():
+        points = db.read_lidar(str(sweeps.tokens[position, k]))
+        to_global = sensor_to_global(sweeps.ego_rotation[position, k], sweeps.ego_translation[position, k],
+                                     sweeps.sensor_rotation[position, k], sweeps.sensor_translation[position, k])
+        xyz.append(apply_transform(to_global, points[:, :3]))
+        lag = (sweeps.timestamps[position, 0] - sweeps.timestamps[position, k]) / 1e6
+        extra.append(np.stack([points[:, 3], np.full(len(points), lag)], axis=1))
+    return np.concatenate(xyz), np.concatenate(extra)
+
+
 # ------------------------------------------------------------------------------ detections as columns
 
 
@@ -236,7 +254,7 @@ class Preparer:
         position = scene.position(sample_token)
         mine = scene.annotation_slice(position)
         rows = scene.annotations[mine]
-        points_global, point_extra = self._lidar_global(scene, position)
+        points_global, point_extra = lidar_points_global(self.db, scene, position)
         cameras = [camera for camera in (self._camera(scene, position, cam, rig, rows, points_global, point_extra)
                                          for cam in range(len(rig.channels))) if camera is not None]
         if not cameras:
@@ -252,19 +270,6 @@ class Preparer:
             "frustums": frustums_table(self.schemas["frustums"], ids, detections, rig, instances),
             "pairs": pairs_table(self.schemas["pairs"], ids, detections, rig, instances, overlap),
         }
-
-    def _lidar_global(self, scene: SceneRecords, position: int) -> tuple[np.ndarray, np.ndarray]:
-        """Key-frame sweep (+ earlier sweeps) in the global frame: (P, 3) xyz, (P, 2) intensity, time lag (s)."""
-        sweeps = scene.sweeps
-        xyz, extra = [np.zeros((0, 3))], [np.zeros((0, 2))]
-        for k in np.flatnonzero(sweeps.rows[position] >= 0).tolist():
-            points = self.db.read_lidar(str(sweeps.tokens[position, k]))
-            to_global = sensor_to_global(sweeps.ego_rotation[position, k], sweeps.ego_translation[position, k],
-                                         sweeps.sensor_rotation[position, k], sweeps.sensor_translation[position, k])
-            xyz.append(apply_transform(to_global, points[:, :3]))
-            lag = (sweeps.timestamps[position, 0] - sweeps.timestamps[position, k]) / 1e6
-            extra.append(np.stack([points[:, 3], np.full(len(points), lag)], axis=1))
-        return np.concatenate(xyz), np.concatenate(extra)
 
     def _camera(self, scene: SceneRecords, position: int, cam: int, rig: CameraRig, rows: np.ndarray,
                 points_global: np.ndarray, point_extra: np.ndarray) -> PreparedDetections | None:

@@ -13,6 +13,18 @@ error (rad, wrapped to [0, π]). curves.png is redrawn every 10 epochs and at th
 checkpoint's ``extra`` holds what inference needs: classes, size-cluster means (l, w, h),
 heading bins. Every random draw of an epoch comes from :func:`~.run.epoch_generator`, so a
 resumed run ends where an uninterrupted one ends.
+
+``multiview`` (off by default, as the paper trains) adds, for every pair of the cache's
+``pairs/`` of a trained class, the union of both frustums along the multi-frustum axis, as
+``sianms eval`` builds it (:mod:`sianms_cli.data.multiview`; needs ``dataroot``, the cache's
+dataset, for the LiDAR sweeps). They are computed once per run, before the first epoch, into
+``RUN/multiview/<shard>.parquet`` (a resumed run reuses them), and each epoch streams them
+beside their shard's single frustums: same batches, sampling and augmentation. The size
+clusters stay the single frustums' means (a union repeats a single frustum's object).
+Validation stays on the validation cache's single frustums. metrics.csv counts the frustums
+trained per epoch (``train_count``) and the union frustums among them (``train_union_count``).
+Computing a union costs more than training on it (LiDAR reads, every point of the sample
+projected into both cameras; figures in :mod:`sianms_cli.data.multiview`), hence once per run.
 """
 
 from __future__ import annotations
@@ -26,6 +38,7 @@ import numpy as np
 import torch
 
 from sianms_cli.data.frustum_dataset import Augmentation, FrustumSelection, class_statistics, iterate_batches
+from sianms_cli.data.multiview import build_union_shards, multiview_settings
 from sianms_cli.errors import SianmsError
 from sianms_cli.geometry.iou3d import box_iou3d
 from sianms_cli.models.fpointnet import NUM_HEADING_BINS, FPointNetV1
@@ -52,6 +65,7 @@ PRIOR_SIZES = {
     "motorcycle": (2.09973778, 0.76279481, 1.44403034),
 }
 CURVES_EVERY = 10  # epochs between redraws of curves.png (about 40 panels: seconds each); also at the end
+MULTIVIEW_FOLDER = "multiview"  # RUN/multiview/<shard>.parquet: the union frustums of each cache shard
 LOSS_TERMS = ("total", "mask", "center", "stage1_center", "heading_class", "heading_residual", "size_class",
               "size_residual", "corner")
 
@@ -79,6 +93,9 @@ class FPointNetConfig:
     box_weight: float = 1.0
     corner_weight: float = 10.0
     num_object_points: int = 512
+    multiview: bool = False  # also train on the union frustums of the cache's camera pairs
+    dataroot: str | None = None  # the cache's nuScenes dataroot (LiDAR sweeps); required with multiview
+    max_distance: float = 50.0  # metres: multi-frustum circle radius, nuScenes' car detection range
     seed: int = 0
     device: str = "auto"
 
@@ -93,6 +110,11 @@ class FPointNetConfig:
             raise SianmsError("--batch-size must be at least 2 (batch norm)")
         if not (self.lr > 0 and 0 < self.decay_rate <= 1 and self.min_box_height >= 0):
             raise SianmsError("--lr must be > 0, --decay-rate in (0, 1], --min-box-height >= 0")
+        if self.multiview and not self.dataroot:
+            raise SianmsError("--multiview needs --dataroot: the nuScenes dataroot the cache was prepared from "
+                              "(union frustums are cut from its LiDAR sweeps)")
+        if not (math.isfinite(self.max_distance) and self.max_distance > 0):
+            raise SianmsError(f"--max-distance must be a finite number > 0, got {self.max_distance}")
 
     @property
     def selection(self) -> FrustumSelection:
@@ -173,12 +195,15 @@ def predict(model: FPointNetV1, tensors: dict[str, torch.Tensor],
 
 def train_epoch(model: FPointNetV1, optimizer: torch.optim.Optimizer, config: FPointNetConfig,
                 rng: np.random.Generator, generator: torch.Generator, samples: int, device: torch.device,
-                progress: Progress) -> tuple[dict[str, float], int]:
-    """One pass over the training cache; (mean loss terms weighted by batch size, samples seen after)."""
+                progress: Progress, unions: Path | None = None) -> tuple[dict[str, float], int]:
+    """One pass over the training cache (and the union frustums in ``unions``, a folder of
+    :func:`~sianms_cli.data.multiview.build_union_shards`); (mean loss terms weighted by batch
+    size plus the frustum counts, samples seen after)."""
     model.train()
     sums = dict.fromkeys(LOSS_TERMS, 0.0)
-    seen = 0
-    for batch in iterate_batches(config.cache, config.selection, config.batch_size, rng, True, config.augmentation):
+    seen = union_seen = 0
+    for batch in iterate_batches(config.cache, config.selection, config.batch_size, rng, True, config.augmentation,
+                                 unions=unions):
         lr, momentum = schedule(config, samples)
         set_learning_rate(optimizer, lr)
         model.set_bn_momentum(momentum)
@@ -192,9 +217,11 @@ def train_epoch(model: FPointNetV1, optimizer: torch.optim.Optimizer, config: FP
         for term in LOSS_TERMS:
             sums[term] += losses[term].item() * size
         seen += size
+        union_seen += int(batch["union"].sum())
         samples += size
         progress.advance(size)
-    return {f"train_{term}": value / max(seen, 1) for term, value in sums.items()}, samples
+    figures = {f"train_{term}": value / max(seen, 1) for term, value in sums.items()}
+    return {**figures, "train_count": seen, "train_union_count": union_seen}, samples
 
 
 @torch.no_grad()
@@ -251,9 +278,14 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
     """
     counts, mean_sizes = size_clusters(config)
     device = choose_device(config.device)
+    union_settings = multiview_settings(config.cache, config.dataroot, config.max_distance) if config.multiview else None
     folder = RunFolder.open(out, kind="fpointnet", config=plain(asdict(config)), overwrite=overwrite,
-                            resume=resume, may_differ=("epochs", "device"))
+                            resume=resume, may_differ=("epochs", "device", "dataroot"))
     with folder:
+        unions, union_counts = None, {}
+        if union_settings is not None:  # once per run: a resumed run finds them done (their key matches)
+            unions = folder.path / MULTIVIEW_FOLDER
+            union_counts = build_union_shards(config.cache, unions, config.selection, union_settings, progress)
         seed_everything(config.seed)
         model = FPointNetV1(torch.as_tensor(mean_sizes), 4 if config.intensity else 3,
                             num_object_points=config.num_object_points).to(device)
@@ -269,9 +301,11 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
             rng = epoch_generator(config.seed, epoch)
             torch.manual_seed(int(rng.integers(2**62)))  # dropout
             generator = torch.Generator(device=device).manual_seed(int(rng.integers(2**62)))  # masking
-            progress.start(int(counts.sum()), "frustum", f"epoch {epoch + 1}/{config.epochs}")
+            progress.start(int(counts.sum()) + sum(union_counts.values()), "frustum",
+                           f"epoch {epoch + 1}/{config.epochs}")
             row: dict[str, Any] = {"epoch": epoch + 1, "lr": schedule(config, samples)[0]}
-            losses, samples = train_epoch(model, optimizer, config, rng, generator, samples, device, progress)
+            losses, samples = train_epoch(model, optimizer, config, rng, generator, samples, device, progress,
+                                          unions)
             row.update(losses)
             if config.val_cache is not None:
                 row.update(validate(model, config, rng, generator, device))
@@ -282,6 +316,7 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
                                    optimizer=optimizer.state_dict(), history=history,
                                    extra={"samples": samples, "classes": list(config.classes),
                                           "mean_sizes": mean_sizes.tolist(), "train_counts": counts.tolist(),
+                                          "train_union_frustums": sum(union_counts.values()),
                                           "num_heading_bins": NUM_HEADING_BINS}),
                         curves=(epoch + 1) % CURVES_EVERY == 0 or epoch + 1 == config.epochs)
     return FPointNetResult(Path(out), history, mean_sizes, start, sum(p.numel() for p in model.parameters()))

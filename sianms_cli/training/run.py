@@ -48,7 +48,9 @@ import math
 import os
 import pickle
 import random
+import struct
 import warnings
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Sequence
@@ -186,7 +188,8 @@ def load_checkpoint(path: str | Path, kind: str | None = None) -> Checkpoint:
         with warnings.catch_warnings():  # torch warns of a foreign pickle protocol before refusing it: say it once
             warnings.simplefilter("ignore", UserWarning)
             data = torch.load(path, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, AttributeError, ImportError) as error:
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, AttributeError, ImportError, struct.error,
+            zipfile.BadZipFile) as error:
         first_line = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
         raise DataFormatError(path, f"not a sianms checkpoint (weights-only load refused it: {first_line})") from None
     if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:

@@ -1,5 +1,6 @@
 """data/frustum_dataset.py on a hand-made cache: filters, the (w, l, h) -> (l, w, h) conversion,
-sampling within each frustum, streaming, and augmentation that keeps points and boxes consistent."""
+sampling within each frustum, streaming (union frustums beside their shard's single ones), and
+augmentation that keeps points and boxes consistent."""
 
 import numpy as np
 import pyarrow as pa
@@ -13,9 +14,11 @@ from sianms_cli.data.frustum_dataset import (
     class_statistics,
     iterate_batches,
     read_shard,
+    read_union_shard,
     sample_points,
 )
 from sianms_cli.data.schemas import FRUSTUMS_SCHEMA
+from sianms_cli.errors import DataFormatError
 
 
 def inside_box(points, center, lwh, heading):
@@ -137,3 +140,46 @@ def test_augmentation_keeps_points_and_boxes_consistent(cache):
     untouched = dict(before)
     augment(untouched, np.random.default_rng(5), Augmentation(flip=False, shift=False, jitter=False))
     assert np.array_equal(untouched["points"], before["points"])
+
+
+@pytest.fixture(scope="module")
+def unions(cache, tmp_path_factory):
+    """Union frustums beside the hand-made cache (as data/multiview.py writes them): two in
+    scene-1 (one with no object point, dropped), none in scene-2."""
+    rng = np.random.default_rng(7)
+    rows = [frustum_row(rng, "u1", "car", (1.9, 4.4, 1.5), 30, points=12, tag=127.5)[0],
+            frustum_row(rng, "u2", "pedestrian", (0.6, 0.7, 1.8), 30, points=5)[0],
+            frustum_row(rng, "u3", "car", (1.9, 4.4, 1.5), 30, object_fraction=0.0)[0]]
+    folder = tmp_path_factory.mktemp("unions")
+    columns = {f.name: [r[f.name] for r in rows] for f in FRUSTUMS_SCHEMA}
+    pq.write_table(pa.table(columns, schema=FRUSTUMS_SCHEMA), folder / "scene-1.parquet")
+    pq.write_table(FRUSTUMS_SCHEMA.empty_table(), folder / "scene-2.parquet")
+    return folder
+
+
+def test_union_frustums_join_their_shard_flagged(cache, unions):
+    selection = FrustumSelection(num_points=16)
+    batches = list(iterate_batches(cache, selection, 4, np.random.default_rng(0), train=False, unions=unions))
+    ids = np.concatenate([b["detection_id"] for b in batches]).tolist()
+    assert ids == ["a", "f", "u1", "u2"] + [f"g{i}" for i in range(9)]  # after their shard's singles
+    assert np.concatenate([b["union"] for b in batches]).tolist() == [False] * 2 + [True] * 2 + [False] * 9
+    union = read_union_shard(unions / "scene-1.parquet", selection)
+    assert union.union.all() and union.lwh[0].tolist() == pytest.approx([4.4, 1.9, 1.5])
+    assert np.allclose(union.points[:12, 3], 0.5)  # intensity / 255, as the singles
+    assert len(read_shard(cache / "frustums" / "scene-1.parquet", selection)) == 2  # the singles unchanged
+
+
+def test_union_frustums_are_trained_in_the_same_shuffled_batches(cache, unions):
+    selection = FrustumSelection(num_points=16)
+    first = list(iterate_batches(cache, selection, 5, np.random.default_rng(3), train=True, unions=unions))
+    again = list(iterate_batches(cache, selection, 5, np.random.default_rng(3), train=True, unions=unions))
+    assert [len(b["center"]) for b in first] == [5, 5, 3]  # 13 frustums
+    assert sum(int(b["union"].sum()) for b in first) == 2
+    assert any(b["union"].any() and not b["union"].all() for b in first)  # mixed with single frustums
+    for a, b in zip(first, again):
+        assert (a["detection_id"] == b["detection_id"]).all() and np.array_equal(a["points"], b["points"])
+
+
+def test_a_missing_union_shard_is_a_format_error(cache, tmp_path):
+    with pytest.raises(DataFormatError, match="union frustums"):
+        list(iterate_batches(cache, FrustumSelection(), 4, np.random.default_rng(0), train=False, unions=tmp_path))

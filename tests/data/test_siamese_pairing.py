@@ -182,3 +182,13 @@ def test_a_pairs_row_naming_an_unknown_detection_is_a_clear_error(tmp_path):
                                     ids), cache / "pairs" / "scene-a.parquet")
     with pytest.raises(DataFormatError, match="pairs/scene-a.parquet: field 'positive_detection_id': a pairs row names"):
         list(data.iter_scenes(cache))
+
+
+def test_feature_statistics_against_all_features_at_once(tmp_path):
+    cache = write_cache(tmp_path / "cache", {"scene-a": ROWS, "scene-b": ROWS[:3]},
+                        {"scene-a": [(0, 1)], "scene-b": [(0, 1)]})
+    mean, std, count = data.feature_statistics(cache)
+    everything = np.concatenate([scene.features for scene in data.iter_scenes(cache)]).astype(np.float64)
+    assert count == len(ROWS) + 3 and mean.shape == std.shape == (SHAPE[0],)
+    np.testing.assert_allclose(mean, everything.mean(axis=(0, 2, 3)), rtol=1e-12)
+    np.testing.assert_allclose(std, everything.std(axis=(0, 2, 3)), rtol=1e-12)

@@ -27,3 +27,19 @@ def test_parameter_count_by_hand():
     net = SiameseEncoder((2, 2, 2), dim=3, conv_channels=(4, 5), hidden=(6,))
     # conv 2->4: 4*2*9+4; conv 4->5: 5*4*9+5; pools 2->1->1: fc 5->6, 6->3
     assert parameter_count(net) == (72 + 4) + (180 + 5) + (30 + 6) + (18 + 3)
+
+
+def test_input_standardisation_is_per_channel_and_in_the_state_dict():
+    torch.manual_seed(0)
+    net = SiameseEncoder((3, 7, 7), dim=4, conv_channels=(8, 8), hidden=(16,)).eval()
+    x = torch.randn(5, 3, 7, 7) * torch.tensor([1.0, 10.0, 100.0])[:, None, None] + 5
+    plain = net(x)  # statistics default to the identity
+    mean, std = torch.tensor([5.0, -1.0, 2.0]), torch.tensor([1.0, 10.0, 0.0])
+    net.set_input_statistics(mean.numpy(), std.numpy())
+    std_used = torch.tensor([1.0, 10.0, 1e-6])  # a constant channel is not divided by zero
+    reference = SiameseEncoder((3, 7, 7), dim=4, conv_channels=(8, 8), hidden=(16,)).eval()
+    reference.load_state_dict({**net.state_dict(), "input_mean": torch.zeros(3), "input_std": torch.ones(3)})
+    torch.testing.assert_close(net(x), reference((x - mean[:, None, None]) / std_used[:, None, None]))
+    assert not torch.equal(net(x), plain)
+    assert torch.equal(net.state_dict()["input_std"], std_used)
+    assert parameter_count(net) == parameter_count(reference)  # buffers, not parameters

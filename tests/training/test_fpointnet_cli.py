@@ -44,3 +44,16 @@ def test_a_cache_without_frustums_of_the_classes_is_one_error_line(tiny_caches, 
 def test_a_missing_cache_is_one_error_line(tmp_path):
     done = invoke("--cache", str(tmp_path / "nope"), "--out", str(tmp_path / "run"), *SMALL)
     assert done.exit_code == 2 and done.stderr.startswith("error: ") and "frustums" in done.stderr
+
+
+def test_multiview_flags_reach_the_training(tiny_caches, tiny_dataroot, tmp_path):
+    train, _ = tiny_caches
+    done = invoke("--cache", str(train), "--out", str(tmp_path / "no-root"), "--multiview", "--epochs", "1", *SMALL)
+    assert done.exit_code == 2 and done.output.startswith("error:") and "--dataroot" in done.output
+    out = tmp_path / "run"
+    done = invoke("--cache", str(train), "--out", str(out), "--multiview", "--dataroot", str(tiny_dataroot),
+                  "--max-distance", "40", "--epochs", "1", "--quiet", *SMALL)
+    assert done.exit_code == 0, done.output
+    config = json.loads((out / "config.json").read_text())
+    assert config["multiview"] is True and config["max_distance"] == 40.0
+    assert (out / "multiview").is_dir()

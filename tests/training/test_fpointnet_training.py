@@ -1,9 +1,12 @@
 """training/fpointnet.py: a tiny training on a generated mini lowers every loss; resume equality;
-the run folder; the box score."""
+the run folder; the box score; the same with --multiview's union frustums."""
 
 import math
+import shutil
+from dataclasses import replace
 
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 import torch
 
@@ -97,3 +100,45 @@ def test_bad_options_are_user_errors():
         FPointNetConfig(cache="c", batch_size=1)
     with pytest.raises(SianmsError, match="distinct"):
         FPointNetConfig(cache="c", classes=("car", "car"))
+
+
+# --multiview: the union frustums of the cache's camera pairs join the training set.
+
+@pytest.fixture(scope="module")
+def multiview(tiny_caches, synthetic_dataroot, tmp_path_factory):
+    config = FPointNetConfig(cache=str(tiny_caches[0]), epochs=3, multiview=True, dataroot=str(synthetic_dataroot()),
+                             **{**TINY, "num_points": 32, "num_object_points": 16, "seed": 2})
+    return config, run(config, tmp_path_factory.mktemp("fpointnet-multiview") / "run")
+
+
+def test_a_tiny_multiview_training_lowers_the_loss_and_counts_its_union_frustums(multiview):
+    config, result = multiview
+    unions = pq.read_table(result.out / "multiview").num_rows  # every union frustum of the cache
+    assert unions > 0
+    total = sum(load_checkpoint(result.out / "checkpoint.pt").extra["train_counts"]) + unions
+    lone = int(total % config.batch_size == 1)  # a last batch of one frustum is dropped (batch norm)
+    for row in result.history:
+        assert row["train_count"] == total - lone and unions - lone <= row["train_union_count"] <= unions
+    assert result.history[-1]["train_total"] < result.history[0]["train_total"]
+    assert result.history[-1]["train_mask"] < result.history[0]["train_mask"]
+    header = (result.out / "metrics.csv").read_text().splitlines()[0].split(",")
+    assert "train_union_count" in header
+
+
+def test_multiview_resume_ends_where_an_uninterrupted_run_ends(multiview, tmp_path):
+    """The union frustums are recomputed here (the folder is removed) and give the same bytes."""
+    config, result = multiview
+    run(replace(config, epochs=2), tmp_path / "stopped")
+    shutil.rmtree(tmp_path / "stopped" / "multiview")
+    resumed = run(config, tmp_path / "stopped", resume=True)
+    assert resumed.resumed_from == 2 and resumed.history[-1] == result.history[-1]
+    a = load_checkpoint(result.out / "checkpoint.pt").model
+    b = load_checkpoint(tmp_path / "stopped" / "checkpoint.pt").model
+    assert all(torch.equal(a[key], b[key]) for key in a)
+
+
+def test_multiview_without_a_dataroot_is_one_clear_error():
+    with pytest.raises(SianmsError, match="--multiview needs --dataroot"):
+        FPointNetConfig(cache="c", multiview=True)
+    with pytest.raises(SianmsError, match="--max-distance"):
+        FPointNetConfig(cache="c", multiview=True, dataroot="d", max_distance=0)

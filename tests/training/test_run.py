@@ -42,9 +42,10 @@ def test_a_pickled_object_is_refused(tmp_path):
     torch.save({"format": "sianms-checkpoint-1", "model": {}, "payload": ValueError("x")}, path)
     with pytest.raises(DataFormatError, match="evil.pt: not a sianms checkpoint .weights-only load refused it"):
         load_checkpoint(path)
-    path.write_bytes(pickle.dumps({"a": 1}) + b"junk")
-    with pytest.raises(DataFormatError, match="not a sianms checkpoint"):
-        load_checkpoint(path)
+    for content in (pickle.dumps({"a": 1}) + b"junk", b"junk", b"", b"PK\x03\x04 a broken zip"):
+        path.write_bytes(content)
+        with pytest.raises(DataFormatError, match="evil.pt: not a sianms checkpoint"):
+            load_checkpoint(path)
 
 
 def test_foreign_keys_and_kinds_are_refused(tmp_path):

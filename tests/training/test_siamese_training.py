@@ -28,7 +28,10 @@ def test_tiny_training_lowers_the_loss_and_separates_distances(tiny_caches, tmp_
                  tmp_path / "run")
     first, last = result.history[0], result.history[-1]
     assert np.mean([row["train_loss"] for row in result.history[-4:]]) < 0.5 * first["train_loss"]
-    assert first["val_auc"] < 0.5 < last["val_auc"]
+    # a random encoder already ranks better than chance (0.7 on this mini): what training adds is
+    # the rise and the lead over the raw features' baseline, averaged over the last epochs
+    late_auc = np.mean([row["val_auc"] for row in result.history[-4:]])
+    assert late_auc > first["val_auc"] + 0.1 and late_auc > last["baseline_auc"]
     assert last["val_positive_distance_mean"] < last["val_negative_distance_mean"]
     assert (tmp_path / "run" / METRICS).read_text().count("\n") == 17
     assert (tmp_path / "run" / CURVES).is_file()
@@ -52,12 +55,13 @@ class StopAfter:
             raise KeyboardInterrupt
 
 
-def test_resume_ends_bit_for_bit_where_an_uninterrupted_run_ends(tiny_caches, tmp_path):
-    straight = run(config(tiny_caches, epochs=3), tmp_path / "straight")
+@pytest.mark.parametrize("standardize", [False, True])
+def test_resume_ends_bit_for_bit_where_an_uninterrupted_run_ends(tiny_caches, tmp_path, standardize):
+    straight = run(config(tiny_caches, epochs=3, standardize=standardize), tmp_path / "straight")
     with pytest.raises(KeyboardInterrupt):
-        run(config(tiny_caches, epochs=3), tmp_path / "resumed", progress=StopAfter(1))
+        run(config(tiny_caches, epochs=3, standardize=standardize), tmp_path / "resumed", progress=StopAfter(1))
     assert load_checkpoint(tmp_path / "resumed" / CHECKPOINT).epoch == 1
-    resumed = run(config(tiny_caches, epochs=3), tmp_path / "resumed", resume=True)
+    resumed = run(config(tiny_caches, epochs=3, standardize=standardize), tmp_path / "resumed", resume=True)
     assert resumed.resumed_from == 1 and resumed.epochs_run == [2, 3]
     a = load_checkpoint(tmp_path / "straight" / CHECKPOINT)
     b = load_checkpoint(tmp_path / "resumed" / CHECKPOINT)
