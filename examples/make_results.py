@@ -1,7 +1,8 @@
 """Write a nuScenes results file made from a split's ground truth, perfect or perturbed.
 
-Until `sianms eval` writes results from a trained model, this gives a newcomer a results
-file for `sianms metrics` without writing Python, and shows what each kind of error costs:
+Without training anything (`sianms eval` writes results from trained models), this gives
+a newcomer a results file for `sianms metrics` without writing Python, and shows what each
+kind of error costs:
 
     python examples/make_results.py --dataroot D --split mini_val --out perfect.json
     python examples/make_results.py --dataroot D --split mini_val --out noisy.json \\

@@ -23,7 +23,7 @@ JSON file that our tests (numpy 2, our own loader and geometry) compare against:
   ``points_in_box`` count over the key-frame LIDAR_TOP points (box moved into the
   lidar frame exactly as ``get_sample_data`` does) next to the stored ``num_lidar_pts``;
 - ``evaluation`` (with --split): ``DetectionEval`` / ``detection_cvpr_2019`` run with
-  the split's own ground truth submitted as predictions.
+  the split's own ground truth submitted as predictions, or with ``--results FILE``.
 
 Non-finite floats (the devkit's NaN TP errors of traffic_cone / barrier) are written
 as ``null`` so the file is strict JSON. The output is written to a temporary file in
@@ -75,6 +75,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--split", default=None,
                         help="evaluation split: predefined (mini_val, val, ...) or a name from VERSION/splits.json; "
                              "without it the detection evaluation is skipped")
+    parser.add_argument("--results", default=None,
+                        help="with --split: evaluate this results file instead of the split's own GT")
     parser.add_argument("--max-samples", type=int, default=None,
                         help="limit the per-sample camera and annotation facts to the first N key frames")
     parser.add_argument("--nsweeps", type=int, default=10,
@@ -270,8 +272,8 @@ def boxes_per_class(eval_boxes, sample_tokens: list[str]) -> dict[str, int]:
     return dict(sorted(counter.items()))
 
 
-def detection_evaluation(nusc: NuScenes, split: str) -> dict[str, Any]:
-    """Run DetectionEval on the split with its own GT submitted as predictions."""
+def detection_evaluation(nusc: NuScenes, split: str, results: str | None = None) -> dict[str, Any]:
+    """Run DetectionEval on the split with a results file, or its own GT submitted as predictions."""
     try:
         sample_tokens = split_sample_tokens(nusc, split)
     except (ValueError, KeyError, AssertionError) as exc:
@@ -279,11 +281,16 @@ def detection_evaluation(nusc: NuScenes, split: str) -> dict[str, Any]:
     if not sample_tokens:
         raise DumpError(f"split '{split}' holds no sample of this dataroot")
     gt_boxes = ground_truth_boxes(nusc, split, sample_tokens)
-    submission = gt_as_results(gt_boxes, sample_tokens)
+    if results is None:
+        submission = gt_as_results(gt_boxes, sample_tokens)
+    else:
+        with open(results) as handle:
+            submission = json.load(handle)
     with tempfile.TemporaryDirectory(prefix="devkit_eval_") as workdir:
-        result_path = os.path.join(workdir, "results.json")
-        with open(result_path, "w") as handle:
-            json.dump(submission, handle)
+        result_path = results or os.path.join(workdir, "results.json")
+        if results is None:
+            with open(result_path, "w") as handle:
+                json.dump(submission, handle)
         try:
             evaluator = DetectionEval(nusc, config_factory(EVAL_CONFIG), result_path, eval_set=split,
                                       output_dir=os.path.join(workdir, "eval"), verbose=False)
@@ -342,12 +349,13 @@ def dump(args: argparse.Namespace) -> dict[str, Any]:
         "lidar_files": lidar_point_counts(nusc),
         "multisweep": multisweep(nusc, samples, args.nsweeps),
         "annotation_points": annotation_points(nusc, samples),
-        "evaluation": detection_evaluation(nusc, args.split) if args.split else None,
+        "evaluation": detection_evaluation(nusc, args.split, args.results) if args.split else None,
     }
     facts["meta"] = {
         "dataroot": os.path.abspath(args.dataroot),
         "version": args.version,
         "split": args.split,
+        "results": args.results,
         "max_samples": args.max_samples,
         "nsweeps": args.nsweeps,
         "n_samples_dumped": len(samples),

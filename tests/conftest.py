@@ -124,3 +124,22 @@ def _alive(pid: int) -> bool:
 def process_tree():
     """``children(pid)``, ``workers(pid)`` and ``alive(pid)`` from /proc: no worker outlives a run."""
     return SimpleNamespace(children=_children, workers=_workers, alive=_alive)
+
+
+@pytest.fixture(scope="session")
+def eval_inputs(synthetic_dataroot, tmp_path_factory):
+    """What `sianms eval` takes, made once (READ-ONLY): a 3-scene mini, the cache of its mini_train
+    split (2 scenes), a siamese and an F-PointNets run trained briefly on it."""
+    from sianms_cli.prepare.config import PrepareConfig
+    from sianms_cli.prepare.job import run as prepare
+    from sianms_cli.training.fpointnet import FPointNetConfig, run as train_fpointnet
+    from sianms_cli.training.siamese import SiameseConfig, run as train_siamese
+
+    data = synthetic_dataroot(scenes=3)
+    folder = tmp_path_factory.mktemp("eval-inputs")
+    cache = prepare(PrepareConfig(dataroot=str(data), version="v1.0-mini", split="mini_train"), folder / "cache").out
+    train_siamese(SiameseConfig(cache=str(cache), epochs=1, seed=1), folder / "siamese")
+    train_fpointnet(FPointNetConfig(cache=str(cache), epochs=1, num_points=64, num_object_points=32, batch_size=8,
+                                    min_box_height=0, device="cpu", seed=1), folder / "fpointnet")
+    return SimpleNamespace(dataroot=data, split="mini_train", cache=cache, siamese=folder / "siamese",
+                           fpointnet=folder / "fpointnet")

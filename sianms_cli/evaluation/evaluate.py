@@ -27,7 +27,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -195,6 +195,7 @@ def evaluate(
     regions: Sequence[str] | str = (ALL,),
     *,
     progress: Progress = SILENT,
+    inspect: Callable[[str, np.ndarray, np.ndarray, dict], None] | None = None,
 ) -> MetricsReport:
     """Evaluate results on a split, per region.
 
@@ -206,6 +207,9 @@ def evaluate(
         config: a preset name (``detection_cvpr_2019``, ``paper``), a JSON file or a config.
         regions: region names (:mod:`sianms_cli.evaluation.regions`), or one comma-separated string.
         progress: told of each region evaluated.
+        inspect: called per region with (name, its filtered GT and predictions as box tables,
+            the 101-point curves by (class, threshold)), for figures the report does not keep
+            (precision-recall curves, duplicates).
 
     Returns:
         The report; its regions are in the order asked for, ``overlap:*`` expanded.
@@ -242,7 +246,9 @@ def evaluate(
     for name in names:
         gt_in = gt if name == ALL else gt[region_mask(name, overlap["gt"], len(gt))]
         pred_in = pred if name == ALL else pred[region_mask(name, overlap["pred"], len(pred))]
-        summary, _ = evaluate_boxes(gt_in, pred_in, config)
+        summary, curves = evaluate_boxes(gt_in, pred_in, config)
+        if inspect is not None:
+            inspect(name, gt_in, pred_in, curves)
         metrics[name] = RegionMetrics(
             label_aps=summary["label_aps"], mean_dist_aps=summary["mean_dist_aps"], mean_ap=summary["mean_ap"],
             label_tp_errors=summary["label_tp_errors"], tp_errors=summary["tp_errors"],

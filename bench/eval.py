@@ -1,0 +1,92 @@
+"""Benchmark of `sianms eval`: per-sample latency of each stage, and samples per second end to end.
+
+Runs the evaluation of a prepared split with trained runs (given, or made here: a synthetic
+mini of --scenes scenes, its mini_train cache, one-epoch trainings) into a temporary
+folder, one process, and prints from ``eval.json`` and the scenes' timings:
+
+- per stage, milliseconds per sample: reading the cache, Frustum PointNets on the
+  single-camera frustums, candidates, siamese embeddings, the assignment, union frustums,
+  Frustum PointNets on the unions; then each method's selection (NMS, siaNMS, ...) with the
+  networks excluded, its metrics, and the pictures;
+- end-to-end samples per second of the scenes stage and of the whole evaluation;
+- the share of the scenes stage spent in the networks, the reference the rest is measured
+  against in the same run.
+
+Usage: python bench/eval.py [--scenes 3] [--threads 1]
+       python bench/eval.py --dataroot D --split S --cache C --siamese R1 --fpointnet R2
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import torch
+
+from sianms_cli.pipelines.job import EvalConfig, run
+from sianms_cli.pipelines.scene import STAGES
+
+NETWORK_STAGES = ("fpointnet_single", "embed", "fpointnet_union")
+
+
+def make_inputs(folder: Path, scenes: int) -> dict[str, str]:
+    """A synthetic mini, its mini_train cache and one-epoch trainings (what the tests use, larger)."""
+    from sianms_cli.prepare.config import PrepareConfig
+    from sianms_cli.prepare.job import run as prepare
+    from sianms_cli.synth.generate import SynthConfig, run as synth
+    from sianms_cli.training.fpointnet import FPointNetConfig, run as train_fpointnet
+    from sianms_cli.training.siamese import SiameseConfig, run as train_siamese
+
+    data = synth(SynthConfig(scenes=scenes, image_scale=0.25, scene_seconds=8.0, seed=7), folder / "data").out
+    cache = prepare(PrepareConfig(dataroot=str(data), version="v1.0-mini", split="mini_train"), folder / "cache").out
+    train_siamese(SiameseConfig(cache=str(cache), epochs=1), folder / "siamese")
+    train_fpointnet(FPointNetConfig(cache=str(cache), epochs=1, num_points=512, batch_size=16, device="cpu"),
+                    folder / "fpointnet")
+    return {"dataroot": str(data), "split": "mini_train", "cache": str(cache), "siamese": str(folder / "siamese"),
+            "fpointnet": str(folder / "fpointnet")}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--scenes", type=int, default=3, help="scenes of the generated mini (without --dataroot)")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads")
+    for name in ("dataroot", "split", "cache", "siamese", "fpointnet"):
+        parser.add_argument(f"--{name}")
+    parser.add_argument("--version", default="v1.0-mini")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    with tempfile.TemporaryDirectory() as temporary:
+        folder = Path(temporary)
+        inputs = ({name: getattr(args, name) for name in ("dataroot", "split", "cache", "siamese", "fpointnet")}
+                  if args.dataroot else make_inputs(folder, args.scenes))
+        started = time.perf_counter()
+        result = run(EvalConfig(version=args.version, **inputs), folder / "eval")
+        total = time.perf_counter() - started
+        stages = dict.fromkeys(STAGES, 0.0)
+        samples = 0
+        for path in sorted((folder / "eval" / "scenes").glob("*.parquet")):
+            timings = json.loads(pq.read_schema(path).metadata[b"sianms.timings"])
+            samples += timings["samples"]
+            for stage in STAGES:
+                stages[stage] += timings[stage]
+        finish = result.manifest["timings"]
+    print(f"{samples} samples, torch threads {args.threads}, {torch.__version__}")
+    print(f"{'stage':<34}{'ms/sample':>12}")
+    for stage, seconds in stages.items():
+        print(f"{'scenes: ' + stage:<34}{1000 * seconds / samples:>12.1f}")
+    for key, seconds in finish.items():
+        if key != "scenes_s":
+            print(f"{'finish: ' + key.removesuffix('_s'):<34}{1000 * seconds / samples:>12.2f}")
+    networks = sum(stages[stage] for stage in NETWORK_STAGES)
+    print(f"scenes stage: {samples / finish['scenes_s']:.2f} samples/s; networks {networks / sum(stages.values()):.0%} "
+          f"of the stages' time, everything else {sum(stages.values()) - networks:.2f} s "
+          f"({(sum(stages.values()) - networks) / networks:.2f}x the networks)")
+    print(f"whole evaluation: {samples / total:.2f} samples/s ({total:.1f} s)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,120 @@
+"""The finish stage of `sianms eval`: results files, metrics per method and region, re-identification quality.
+
+Runs once every scene's boxes table exists (:mod:`.job`). Ground truth enters here only, to
+score: the metrics (``sianms metrics``' evaluator, the ``paper`` config) and the
+re-identification figures (the ``correct`` flag of each match, and the oracle's matches as
+the pairs there were to find).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sianms_cli.evaluation.boxes import ATTRIBUTE, BOX_DTYPE, LABEL, NO_ATTRIBUTE
+from sianms_cli.evaluation.config import load_config
+from sianms_cli.evaluation.dataset import eval_split
+from sianms_cli.evaluation.evaluate import evaluate
+from sianms_cli.evaluation.report import MetricsReport, write_report
+from sianms_cli.evaluation.results import results_from_boxes, write_results
+from sianms_cli.io import write_json, write_text
+from sianms_cli.nuscenes.loader import NuScenesDB
+from sianms_cli.pipelines.matching import pair_quality
+from sianms_cli.pipelines.methods import HYBRID, ORACLE, SIANMS, AllBoxes, select, split_name
+from sianms_cli.pipelines.scoring import RegionFigures
+from sianms_cli.progress import Progress
+
+PICTURE_METHODS = ("vanilla", "axis-nms", "sianms", "oracle")  # the paper's Fig. 5 columns, and the ceiling
+RESULTS_META = {"use_camera": True, "use_lidar": True, "use_radar": False, "use_map": False, "use_external": False}
+
+
+def box_table(boxes: AllBoxes, rows: np.ndarray, default_attribute: dict[str, str]) -> np.ndarray:
+    """The selected rows as a results box table (:data:`~sianms_cli.evaluation.boxes.BOX_DTYPE`)."""
+    from sianms_cli.geometry.quaternion import yaw_to_quat
+
+    table = np.zeros(len(rows), dtype=BOX_DTYPE)
+    table["sample"] = boxes.sample[rows]
+    names = boxes.classes[rows]
+    table["label"] = [LABEL[name] for name in names]
+    table["attribute"] = [ATTRIBUTE[default_attribute[name]] if default_attribute.get(name) else NO_ATTRIBUTE
+                          for name in names]
+    table["translation"] = boxes.translation[rows]
+    table["size"] = boxes.size[rows]
+    table["rotation"] = yaw_to_quat(boxes.yaw[rows])
+    table["velocity"] = 0.0
+    table["score"] = boxes.score[rows]
+    table["num_pts"] = -1
+    return table
+
+
+def reidentification(boxes: AllBoxes) -> dict[str, dict[str, float]]:
+    """Pair precision / recall / F1 of siaNMS's kept matches against ground-truth identity.
+
+    The pairs to find are the oracle's (same instance, both candidates under the same rule),
+    before the frustum-overlap dismissal; the dismissals are counted separately.
+    """
+    oracle = boxes.kind == ORACLE
+    out = {}
+    for kind in (SIANMS, ORACLE):
+        mine = boxes.kind == kind
+        kept = mine & ~boxes.dismissed
+        figures = pair_quality(int(kept.sum()), int((kept & boxes.correct).sum()), int(oracle.sum()))
+        figures["dismissed"] = int((mine & boxes.dismissed).sum())
+        out[kind] = figures
+    return out
+
+
+def finish(db: NuScenesDB, config, out: Path, scenes: list[str], timings: dict[str, float],
+           progress: Progress) -> dict[str, Any]:
+    """Write every method's results and metrics, the table and the re-identification figures."""
+    from sianms_cli.pipelines.job import DEFAULT_ATTRIBUTE, METRICS_CONFIG, REGIONS, read_boxes
+    from sianms_cli.reporting.eval_pictures import draw_pr_curves
+    from sianms_cli.reporting.eval_table import TABLE_CLASS, eval_table, table_markdown
+
+    split = eval_split(db, config.split)
+    boxes = read_boxes(out, scenes, list(split.sample_tokens))
+    reports: dict[str, MetricsReport] = {}
+    counts: dict[str, int] = {}
+    figures: dict[str, dict[str, Any]] = {}
+    methods = config.method_names
+    progress.start(len(methods), "method", "scoring")
+    for method in methods:
+        started = time.perf_counter()
+        rows = select(boxes, method, config.axis_mode)
+        timings[f"select_{method}_s"] = time.perf_counter() - started
+        counts[method] = len(rows)
+        results = results_from_boxes(split.sample_tokens, box_table(boxes, rows, DEFAULT_ATTRIBUTE), RESULTS_META,
+                                     path=str(out / f"results_{method}.json"))
+        write_results(out / f"results_{method}.json", results, overwrite=True)
+        started = time.perf_counter()
+        collector = RegionFigures(load_config(METRICS_CONFIG).class_names, load_config(METRICS_CONFIG).dist_th_tp)
+        reports[method] = evaluate(db, split, results, METRICS_CONFIG, REGIONS, inspect=collector.collect)
+        figures[method] = collector.figures
+        timings[f"metrics_{method}_s"] = time.perf_counter() - started
+        write_report(out / f"metrics_{method}.json", reports[method], overwrite=True)
+        progress.advance()
+    reid = reidentification(boxes) if any(split_name(m)[0] in (SIANMS, HYBRID, ORACLE) for m in methods) else {}
+    table = eval_table(reports, reid, counts, {m: {r: f["duplicates"] for r, f in v.items()} for m, v in figures.items()})
+    write_json(out / "curves.json", {m: {r: f["pr"] for r, f in v.items()} for m, v in figures.items()})
+    draw_pr_curves(out / "pr_curves.png", {m: {r: f["pr"] for r, f in v.items()} for m, v in figures.items()},
+                   TABLE_CLASS)
+    write_json(out / "table.json", table)
+    write_text(out / "table.md", table_markdown(table))
+    started = time.perf_counter()
+    draw_pictures(db, config, out, boxes, split.sample_tokens, next(iter(reports.values())).cfg.class_names)
+    timings["pictures_s"] = time.perf_counter() - started
+    return table
+
+
+def draw_pictures(db: NuScenesDB, config, out: Path, boxes: AllBoxes, sample_tokens, classes) -> None:
+    """``pictures/<sample>.png`` for the samples :func:`~sianms_cli.reporting.eval_pictures.pick_samples` picks."""
+    from sianms_cli.reporting.eval_pictures import draw_sample, pick_samples
+
+    shown = [m for m in PICTURE_METHODS if m in config.method_names] or list(config.method_names[:4])
+    selections = {method: select(boxes, method, config.axis_mode) for method in shown}
+    for sample in pick_samples(boxes, config.pictures):
+        draw_sample(out / "pictures" / f"{sample_tokens[sample]}.png", db, sample_tokens[sample], sample, boxes,
+                    selections, tuple(classes))

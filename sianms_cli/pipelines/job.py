@@ -1,0 +1,373 @@
+"""`sianms eval`: every duplicate-handling method on one split, end to end to Table I.
+
+Two stages under ``out``:
+
+1. **Scenes** (the expensive one, resumable): for each scene of the split, the cache's shard
+   goes through :class:`~.scene.SceneEvaluator` and its boxes table is written atomically to
+   ``scenes/<scene>.parquet``. A finished scene is never recomputed, so a killed run reruns
+   only what is missing; runs with ``--shard K/N`` split the scenes between them and
+   cooperate scene by scene (a lock per scene, as ``prepare``).
+2. **Finish** (seconds, whenever every scene is done): each method's selection
+   (:mod:`.methods`) becomes ``results_<method>.json`` (nuScenes submission format), is
+   scored with the ``paper`` metrics config in the regions all, overlap and per camera pair
+   (``metrics_<method>.json``, the data class ``sianms metrics`` writes), and the comparison
+   is written as ``table.md`` / ``table.json`` (:mod:`sianms_cli.reporting.eval_table`).
+
+``eval.json`` holds the resolved config, the inputs' fingerprints, the scenes done and the
+timings; its ``complete`` is true only once the finish stage has written every output.
+
+Predictions carry what Frustum PointNets does not estimate as MMDetection3D fills it for a
+model without a velocity head: velocity (0, 0), and the class's default attribute for a
+box that does not move (``NuScenesDataset._format_bbox``: car ``vehicle.parked``,
+pedestrian ``pedestrian.standing``, bicycle and motorcycle ``cycle.without_rider``, bus
+``vehicle.stopped``). The paper's metrics (AP, ATE, ASE, AOE) use neither.
+"""
+
+from __future__ import annotations
+
+import shutil
+import time
+from contextlib import closing
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from sianms_cli.data.cache import read_manifest
+from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
+from sianms_cli.io import atomic_file, exclusive_lock, make_folder, read_json, release_lock, sha256_of, try_lock, write_json
+from sianms_cli.nuscenes.fingerprint import dataset_fingerprint
+from sianms_cli.nuscenes.loader import NuScenesDB
+from sianms_cli.pipelines.methods import AllBoxes, parse_methods, parse_thresholds
+from sianms_cli.pipelines.scene import BOXES_SCHEMA, SceneEvaluator, SceneSettings
+from sianms_cli.prepare.job import parse_shard, split_scenes
+from sianms_cli.processes import worker_pool
+from sianms_cli.progress import SILENT, Progress
+
+MARKER = "eval.json"
+SCENES = "scenes"
+LOCK = ".eval.lock"
+KIND = "sianms-eval"
+REGIONS = ("all", "overlap", "overlap:*")
+METRICS_CONFIG = "paper"
+AXIS_MODES = ("ignore-yaw", "nearest-bev", "enclosing")
+DEFAULT_ATTRIBUTE = {"car": "vehicle.parked", "truck": "vehicle.parked", "trailer": "vehicle.parked",
+                     "construction_vehicle": "vehicle.parked", "bus": "vehicle.stopped",
+                     "pedestrian": "pedestrian.standing", "bicycle": "cycle.without_rider",
+                     "motorcycle": "cycle.without_rider", "barrier": "", "traffic_cone": ""}
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """What `sianms eval` does (module docstring); every field is a flag."""
+
+    dataroot: str
+    version: str
+    split: str
+    cache: str
+    siamese: str
+    fpointnet: str
+    methods: str = "all"
+    nms_sweep: str | None = None
+    axis_mode: str = "ignore-yaw"
+    sianms_classes: tuple[str, ...] = ("car",)
+    dis_thr: float | None = None  # None: the siamese checkpoint's
+    max_distance: float = 50.0  # nuScenes' detection range for cars (detection_cvpr_2019 class_range)
+    seed: int = 0
+    device: str = "cpu"
+    pictures: int = 4  # samples drawn in bird's-eye view (the most ground-truth duplicates first)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "sianms_classes", tuple(self.sianms_classes))
+        self.method_names  # validates --methods and --nms-sweep
+        if self.axis_mode not in AXIS_MODES:
+            raise SianmsError(f"--axis-mode must be one of {', '.join(AXIS_MODES)}, got '{self.axis_mode}'")
+        if not self.sianms_classes:
+            raise SianmsError("--sianms-classes must name at least one class")
+        if self.dis_thr is not None and not self.dis_thr > 0:
+            raise SianmsError(f"--dis-thr must be > 0, got {self.dis_thr}")
+        if self.pictures < 0:
+            raise SianmsError(f"--pictures must be >= 0, got {self.pictures}")
+        if not self.max_distance > 0:
+            raise SianmsError(f"--max-distance must be > 0, got {self.max_distance}")
+
+    @property
+    def method_names(self) -> tuple[str, ...]:
+        return parse_methods(self.methods, parse_thresholds(self.nms_sweep))
+
+
+@dataclass
+class EvalResult:
+    """What one run did, and the outputs when the evaluation is complete."""
+
+    out: Path
+    manifest: dict[str, Any]
+    scenes_run: list[str] = field(default_factory=list)
+    scenes_skipped: list[str] = field(default_factory=list)
+    scenes_busy: list[str] = field(default_factory=list)
+    table: dict[str, Any] | None = None
+
+
+# --------------------------------------------------------------------------- inputs
+
+
+def cache_settings(cache: Path, db: NuScenesDB, split: str, scenes: list[str]) -> dict[str, Any]:
+    """The cache's resolved prepare config, checked to be a complete cache of this dataset's split."""
+    manifest = read_manifest(cache)
+    if manifest is None:
+        raise DataFormatError(cache, "not a sianms cache (no manifest.json); run `sianms prepare` first")
+    config = manifest["config"]
+    where = cache / "manifest.json"
+    if not manifest.get("complete"):
+        raise DataFormatError(where, f"the cache is not complete (missing shards: "
+                                     f"{', '.join(manifest.get('missing_shards', [])) or '?'}); finish `sianms prepare`",
+                              field="complete")
+    if config.get("dataset_sha256") != dataset_fingerprint(db.table_root):
+        raise DataFormatError(where, "the cache was prepared from another dataset than --dataroot/--version",
+                              field="config.dataset_sha256")
+    if list(config.get("split_scenes", [])) != scenes:
+        raise DataFormatError(where, f"the cache holds split '{config.get('split')}', not --split {split}",
+                              field="config.split_scenes")
+    return config
+
+
+def scene_settings(config: EvalConfig, cache_config: dict[str, Any], dis_thr: float) -> SceneSettings:
+    max_depth = cache_config.get("max_depth")
+    return SceneSettings(
+        matched_classes=config.sianms_classes, dis_thr=dis_thr, max_distance=config.max_distance, seed=config.seed,
+        sweeps=int(cache_config.get("sweeps", 0)), min_depth=float(cache_config.get("min_depth", 1.0)),
+        max_depth=float("inf") if max_depth is None else float(max_depth))
+
+
+def _run_file(run: str) -> Path:
+    path = Path(run)
+    return path / "checkpoint.pt" if path.is_dir() else path
+
+
+def load_models(config: EvalConfig):
+    """(F-PointNets predictor, siamese encoder, dis_thr): the trained runs, loaded once."""
+    from sianms_cli.pipelines.inference import FPointNetPredictor
+    from sianms_cli.training.siamese import load_encoder
+
+    predictor = FPointNetPredictor(config.fpointnet, config.device)
+    encoder, dis_thr = load_encoder(config.siamese, config.device)
+    return predictor, encoder, float(config.dis_thr if config.dis_thr is not None else dis_thr)
+
+
+FINISH_FIELDS = ("methods", "nms_sweep", "axis_mode", "pictures")  # decide only which boxes each method reports
+
+
+def resolved_config(config: EvalConfig, db: NuScenesDB, scenes: list[str], dis_thr: float) -> dict[str, Any]:
+    """The config as eval.json records it: inputs by content (dataset, cache, checkpoints).
+
+    The fields of :data:`FINISH_FIELDS` do not change the scenes' boxes tables, so an
+    ``--overwrite`` that changes only them keeps the scenes and redoes the finish stage.
+    """
+    data = asdict(config)
+    for name in ("dataroot", "cache", "siamese", "fpointnet", "device"):
+        del data[name]
+    data.update(sianms_classes=list(config.sianms_classes), dis_thr=dis_thr, methods=list(config.method_names),
+                dataset_sha256=dataset_fingerprint(db.table_root), split_scenes=scenes,
+                cache_sha256=sha256_of(Path(config.cache) / "manifest.json"),
+                siamese_sha256=sha256_of(_run_file(config.siamese)),
+                fpointnet_sha256=sha256_of(_run_file(config.fpointnet)))
+    return data
+
+
+# --------------------------------------------------------------------------- the output folder
+
+
+def scene_part(resolved: dict[str, Any]) -> dict[str, Any]:
+    """The part of a resolved config the scenes' boxes tables depend on."""
+    return {key: value for key, value in resolved.items() if key not in FINISH_FIELDS}
+
+
+def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> bool:
+    """Make ``out`` this evaluation's folder, or check that it is (under the folder lock).
+
+    A folder with another evaluation's ``eval.json`` is replaced only with ``overwrite``
+    (keeping its scenes when they are this config's); a non-empty folder without one is never
+    touched. Returns whether ``out`` already holds this evaluation, complete.
+    """
+    marker = out / MARKER
+    entries = [entry for entry in out.iterdir() if entry.name != LOCK]
+    if entries and not marker.is_file():
+        raise OutputExistsError(f"{out} is not empty and is not a sianms evaluation (no {MARKER}); "
+                                "choose another --out")
+    if marker.is_file():
+        stored = read_json(marker)
+        if not isinstance(stored, dict) or stored.get("kind") != KIND:
+            raise OutputExistsError(f"{marker} is not a sianms evaluation's; choose another --out")
+        if stored.get("config") != resolved:
+            if not overwrite:
+                differing = sorted(k for k in set(resolved) | set(stored.get("config", {}))
+                                   if resolved.get(k) != stored.get("config", {}).get(k))
+                raise OutputExistsError(f"{out} holds an evaluation with another config (differs in: "
+                                        f"{', '.join(differing)}); pass --overwrite or choose another --out")
+            keep_scenes = scene_part(stored.get("config", {})) == scene_part(resolved)
+            for entry in entries:
+                if entry.name != MARKER and not (keep_scenes and entry.name == SCENES):
+                    shutil.rmtree(entry) if entry.is_dir() else entry.unlink()
+        elif stored.get("complete"):
+            return True
+    make_folder(out / SCENES)
+    write_marker(out, resolved, {}, complete=False)
+    return False
+
+
+def write_marker(out: Path, resolved: dict[str, Any], extra: dict[str, Any], *, complete: bool) -> dict[str, Any]:
+    scenes = resolved["split_scenes"]
+    done = [name for name in scenes if (out / SCENES / f"{name}.parquet").is_file()]
+    marker = {"kind": KIND, "config": resolved, "complete": complete, "scenes_expected": len(scenes),
+              "scenes_finished": len(done), "missing_scenes": [name for name in scenes if name not in done], **extra}
+    write_json(out / MARKER, marker)
+    return marker
+
+
+def scene_path(out: Path, name: str) -> Path:
+    return out / SCENES / f"{name}.parquet"
+
+
+def write_scene(evaluator: SceneEvaluator, cache: Path, out: Path, token: str, name: str) -> str:
+    """Evaluate one scene unless it is done or another run holds it: "written", "finished", "busy"."""
+    lock = try_lock(out / SCENES / f"{name}.lock")
+    if lock is None:
+        return "busy"
+    try:
+        path = scene_path(out, name)
+        if path.is_file():
+            return "finished"
+        table = evaluator.scene(cache / "detections" / f"{name}.parquet", cache / "frustums" / f"{name}.parquet", token)
+        with atomic_file(path) as handle:
+            pq.write_table(table, handle, compression="zstd")
+        return "written"
+    finally:
+        release_lock(lock)
+
+
+# --------------------------------------------------------------------------- workers
+
+_WORKER: tuple[SceneEvaluator, Path, Path] | None = None
+
+
+def _init_worker(config: EvalConfig, settings: SceneSettings, out: str) -> None:
+    global _WORKER
+    import torch
+
+    torch.set_num_threads(1)
+    predictor, encoder, _ = load_models(config)
+    db = NuScenesDB(config.dataroot, config.version)
+    _WORKER = (SceneEvaluator(db, predictor, encoder, settings), Path(config.cache), Path(out))
+
+
+def _run_in_worker(args: tuple[str, str]) -> tuple[str, str]:
+    token, name = args
+    assert _WORKER is not None
+    evaluator, cache, out = _WORKER
+    return name, write_scene(evaluator, cache, out, token, name)
+
+
+def _run_scenes(evaluator: SceneEvaluator, config: EvalConfig, settings: SceneSettings, out: Path,
+                todo: list[tuple[str, str]], workers: int) -> Iterator[tuple[str, str]]:
+    if workers == 1 or len(todo) <= 1:
+        for token, name in todo:
+            yield name, write_scene(evaluator, Path(config.cache), out, token, name)
+        return
+    with worker_pool(min(workers, len(todo)), _init_worker, (config, settings, str(out))) as pool:
+        yield from pool.imap_unordered(_run_in_worker, todo)
+
+
+# --------------------------------------------------------------------------- entry point
+
+
+def run(config: EvalConfig, out: str | Path, *, overwrite: bool = False, progress: Progress = SILENT,
+        workers: int = 1, shard: str | None = None) -> EvalResult:
+    """Evaluate every method of ``config`` into ``out`` (module docstring).
+
+    Args:
+        config: what to evaluate.
+        out: the evaluation folder.
+        overwrite: replace an evaluation of another config in ``out``.
+        progress: told the scenes to do, then each one done.
+        workers: processes for the scenes stage (the output does not depend on it).
+        shard: "K/N": this run does the scenes whose position in the split is K mod N.
+    """
+    started = time.perf_counter()
+    k, n = parse_shard(shard)
+    if workers < 1:
+        raise SianmsError(f"--workers must be at least 1, got {workers}")
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise OutputExistsError(f"{out} exists and is not a folder; choose another --out")
+    db = NuScenesDB(config.dataroot, config.version)
+    scenes = split_scenes(db, config.split)
+    names = [name for _, name in scenes]
+    cache = Path(config.cache)
+    cache_config = cache_settings(cache, db, config.split, names)
+    predictor, encoder, dis_thr = load_models(config)
+    resolved = resolved_config(config, db, names, dis_thr)
+    settings = scene_settings(config, cache_config, dis_thr)
+    make_folder(out)
+    with exclusive_lock(out / LOCK, what=str(out), blocking=True):
+        if claim_output(out, resolved, overwrite):
+            return EvalResult(out, read_json(out / MARKER), scenes_skipped=names, table=read_json(out / "table.json"))
+    mine = [(token, name) for i, (token, name) in enumerate(scenes) if i % n == k]
+    result = EvalResult(out, {})
+    todo = [(token, name) for token, name in mine if not scene_path(out, name).is_file()]
+    result.scenes_skipped = [name for _, name in mine if scene_path(out, name).is_file()]
+    evaluator = SceneEvaluator(db, predictor, encoder, settings)
+    progress.start(len(todo), "scene", "eval")
+    outcomes = {"written": result.scenes_run, "finished": result.scenes_skipped, "busy": result.scenes_busy}
+    try:
+        with closing(_run_scenes(evaluator, config, settings, out, todo, workers)) as done:
+            for name, outcome in done:
+                outcomes[outcome].append(name)
+                progress.advance()
+    finally:
+        with exclusive_lock(out / LOCK, what=str(out), blocking=True):
+            result.manifest = write_marker(out, resolved, {}, complete=False)
+    scenes_seconds = time.perf_counter() - started
+    if result.manifest["missing_scenes"]:
+        return result
+    from sianms_cli.pipelines.finish import finish
+
+    with exclusive_lock(out / LOCK, what=str(out), blocking=True):
+        timings = {"scenes_s": scenes_seconds}
+        result.table = finish(db, config, out, names, timings, progress)
+        result.manifest = write_marker(out, resolved, {"timings": timings}, complete=True)
+    return result
+
+
+def read_boxes(out: Path, scenes: list[str], sample_tokens: list[str]) -> AllBoxes:
+    """Every scene's boxes table as :class:`AllBoxes`, samples indexed in ``sample_tokens``."""
+    table = pa.concat_tables([pq.read_table(scene_path(out, name), schema=BOXES_SCHEMA) for name in scenes])
+    position = {token: i for i, token in enumerate(sample_tokens)}
+    samples = table["sample_token"].to_pylist()
+    missing = [token for token in samples if token not in position]
+    if missing:
+        raise DataFormatError(out / SCENES, f"boxes of sample {missing[0]}, which is not in the split",
+                              field="sample_token")
+
+    def vectors(name: str, width: int = 3) -> np.ndarray:
+        column = table[name].combine_chunks()
+        values = np.full((len(column), width), np.nan)
+        valid = column.is_valid().to_numpy(zero_copy_only=False)
+        values[valid] = column.drop_null().flatten().to_numpy().reshape(-1, width)
+        return values
+
+    def strings(name: str) -> np.ndarray:
+        return table[name].fill_null("").to_numpy(zero_copy_only=False).astype(str)
+
+    return AllBoxes(
+        sample=np.array([position[token] for token in samples], dtype=np.int64),
+        kind=strings("kind"), detection_a=strings("detection_a"), detection_b=strings("detection_b"),
+        classes=strings("class"), score=table["score"].to_numpy().astype(np.float64),
+        translation=vectors("translation"), size=vectors("size"),
+        yaw=table["yaw"].to_numpy(zero_copy_only=False).astype(np.float64),
+        dismissed=table["dismissed"].to_numpy(zero_copy_only=False).astype(bool),
+        correct=table["correct"].fill_null(False).to_numpy(zero_copy_only=False).astype(bool),
+        wedges=vectors("wedges", 12))
+

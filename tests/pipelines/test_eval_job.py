@@ -1,0 +1,116 @@
+"""`sianms eval` end to end on a generated mini: every method's results, metrics and table; resume; refusals."""
+
+import json
+import shutil
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from sianms_cli.errors import DataFormatError, OutputExistsError
+from sianms_cli.evaluation.results import read_results
+from sianms_cli.pipelines.job import EvalConfig, run
+from sianms_cli.pipelines.methods import METHODS
+from sianms_cli.progress import SILENT
+
+
+def config_of(inputs, **fields):
+    values = dict(dataroot=str(inputs.dataroot), version="v1.0-mini", split=inputs.split, cache=str(inputs.cache),
+                  siamese=str(inputs.siamese), fpointnet=str(inputs.fpointnet))
+    return EvalConfig(**{**values, **fields})
+
+
+@pytest.fixture(scope="module")
+def evaluated(eval_inputs, tmp_path_factory):
+    out = tmp_path_factory.mktemp("eval") / "out"
+    return out, run(config_of(eval_inputs, nms_sweep="0.1"), out)
+
+
+def test_every_method_writes_valid_results_metrics_and_the_table(evaluated):
+    out, result = evaluated
+    marker = json.loads((out / "eval.json").read_text())
+    assert marker["complete"] and marker["missing_scenes"] == [] and marker["scenes_expected"] == 2
+    names = list(METHODS) + ["axis-nms@0.1", "rotated-nms@0.1"]
+    assert sorted(result.table["methods"]) == sorted(names)
+    samples = None
+    for name in names:
+        results = read_results(out / f"results_{name}.json")
+        samples = samples or set(results.sample_tokens)
+        assert set(results.sample_tokens) == samples  # every sample listed, [] where nothing
+        assert np.all(results.boxes["size"] > 0)
+        metrics = json.loads((out / f"metrics_{name}.json").read_text())
+        assert "all" in metrics["regions"] and "overlap" in metrics["regions"]
+    counts = result.table["boxes"]
+    assert counts["vanilla"] >= max(counts[name] for name in names)
+    assert counts["hybrid"] <= counts["sianms"]
+    assert "| Areas |" in (out / "table.md").read_text()
+
+
+def test_the_oracle_matches_only_one_instance_and_sianms_is_scored_against_it(evaluated):
+    out, result = evaluated
+    tables = [pq.read_table(path).to_pylist() for path in sorted((out / "scenes").glob("*.parquet"))]
+    rows = [row for table in tables for row in table]
+    oracle = [row for row in rows if row["kind"] == "oracle"]
+    assert oracle and all(row["correct"] for row in oracle)
+    reid = result.table["reidentification"]
+    assert reid["oracle"]["precision"] == 1.0 and reid["sianms"]["pairs_true"] == len(oracle)
+    single = [row for row in rows if row["kind"] == "single"]
+    assert all(row["detection_b"] is None and row["translation"] is not None for row in single)
+
+
+def test_a_rerun_resumes_and_an_interrupted_run_resumes_to_the_same_bytes(eval_inputs, evaluated, tmp_path):
+    out, _ = evaluated
+    again = run(config_of(eval_inputs, nms_sweep="0.1"), out)
+    assert again.scenes_run == [] and len(again.scenes_skipped) == 2
+
+    class Stop(SILENT.__class__):
+        def advance(self, amount=1):
+            raise KeyboardInterrupt
+
+    stopped = tmp_path / "stopped"
+    with pytest.raises(KeyboardInterrupt):
+        run(config_of(eval_inputs, nms_sweep="0.1"), stopped, progress=Stop())
+    marker = json.loads((stopped / "eval.json").read_text())
+    assert not marker["complete"] and marker["scenes_finished"] == 1 and not (stopped / "table.json").exists()
+    resumed = run(config_of(eval_inputs, nms_sweep="0.1"), stopped)
+    assert len(resumed.scenes_run) == 1
+    for path in sorted(out.glob("results_*.json")):
+        assert (stopped / path.name).read_bytes() == path.read_bytes(), path.name
+    for path in sorted((out / "scenes").glob("*.parquet")):  # equal but for the timings in the metadata
+        assert pq.read_table(stopped / "scenes" / path.name).replace_schema_metadata(None).equals(
+            pq.read_table(path).replace_schema_metadata(None)), path.name
+
+
+def test_refusals_name_the_problem(eval_inputs, evaluated, tmp_path):
+    out, _ = evaluated
+    with pytest.raises(OutputExistsError, match=r"differs in: seed\)"):
+        run(config_of(eval_inputs, seed=5, nms_sweep="0.1"), out)
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "keep.txt").write_text("mine")
+    with pytest.raises(OutputExistsError, match="not a sianms evaluation"):
+        run(config_of(eval_inputs), foreign, overwrite=True)
+    assert (foreign / "keep.txt").read_text() == "mine"
+    with pytest.raises(DataFormatError, match="mini_val"):
+        run(config_of(eval_inputs, split="mini_val"), tmp_path / "other")
+
+
+def test_overwrite_with_other_methods_keeps_the_scenes(eval_inputs, evaluated, tmp_path):
+    out, _ = evaluated
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy)
+    scenes = {path.name: path.stat().st_mtime_ns for path in (copy / "scenes").glob("*.parquet")}
+    result = run(config_of(eval_inputs, methods="vanilla,sianms"), copy, overwrite=True)
+    assert result.scenes_run == [] and result.table["methods"] == ["vanilla", "sianms"]
+    assert {path.name: path.stat().st_mtime_ns for path in (copy / "scenes").glob("*.parquet")} == scenes
+    assert not (copy / "results_axis-nms.json").exists()
+    assert (copy / "results_sianms.json").read_bytes() == (out / "results_sianms.json").read_bytes()
+
+
+def test_two_workers_write_the_same_scenes_as_one(eval_inputs, evaluated, tmp_path):
+    out, _ = evaluated
+    result = run(config_of(eval_inputs, methods="vanilla", pictures=0), tmp_path / "two", workers=2)
+    assert sorted(result.scenes_run) == sorted(path.stem for path in (out / "scenes").glob("*.parquet"))
+    for path in sorted((out / "scenes").glob("*.parquet")):
+        assert pq.read_table(tmp_path / "two" / "scenes" / path.name).replace_schema_metadata(None).equals(
+            pq.read_table(path).replace_schema_metadata(None)), path.name
