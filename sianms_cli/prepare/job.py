@@ -118,8 +118,12 @@ def check_inputs(db: NuScenesDB, config: PrepareConfig, scenes: list[tuple[str, 
 
 
 def refuse_foreign_folder(out: Path) -> None:
-    """Refuse, without touching it, a folder that holds anything but a sianms cache."""
-    if out.is_dir() and read_manifest(out) is None and any(out.iterdir()):
+    """Refuse, without touching it, a folder that holds anything but a sianms cache.
+
+    The folder lock alone is no foreign content: another run starting into the same new
+    folder holds it before its manifest exists.
+    """
+    if out.is_dir() and read_manifest(out) is None and any(e.name != FOLDER_LOCK for e in out.iterdir()):
         raise OutputExistsError(
             f"{out} is not empty and is not a sianms cache (no {MANIFEST}); choose another --out")
 
