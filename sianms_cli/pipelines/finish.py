@@ -13,34 +13,74 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
 
+from sianms_cli.errors import DataFormatError
 from sianms_cli.evaluation.boxes import ATTRIBUTE, BOX_DTYPE, LABEL, NO_ATTRIBUTE
 from sianms_cli.evaluation.config import load_config
 from sianms_cli.evaluation.dataset import eval_split
 from sianms_cli.evaluation.evaluate import evaluate
 from sianms_cli.evaluation.report import MetricsReport, write_report
 from sianms_cli.evaluation.results import results_from_boxes, write_results
+from sianms_cli.geometry.quaternion import yaw_to_quat
 from sianms_cli.io import write_json, write_text
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.pipelines.matching import pair_quality
 from sianms_cli.pipelines.methods import HYBRID, ORACLE, SIANMS, AllBoxes, select, split_name
+from sianms_cli.pipelines.scene import BOXES_SCHEMA
 from sianms_cli.pipelines.scoring import RegionFigures
 from sianms_cli.progress import Progress
 
+REGIONS = ("all", "overlap", "overlap:*")
+METRICS_CONFIG = "paper"
+DEFAULT_ATTRIBUTE = {"car": "vehicle.parked", "truck": "vehicle.parked", "trailer": "vehicle.parked",
+                     "construction_vehicle": "vehicle.parked", "bus": "vehicle.stopped",
+                     "pedestrian": "pedestrian.standing", "bicycle": "cycle.without_rider",
+                     "motorcycle": "cycle.without_rider", "barrier": "", "traffic_cone": ""}
 PICTURE_METHODS = ("vanilla", "axis-nms", "sianms", "oracle")  # the paper's Fig. 5 columns, and the ceiling
 RESULTS_META = {"use_camera": True, "use_lidar": True, "use_radar": False, "use_map": False, "use_external": False}
 
 
+def read_boxes(paths: list[Path], sample_tokens: list[str]) -> AllBoxes:
+    """The scenes' boxes tables (:data:`~.scene.BOXES_SCHEMA`) as :class:`AllBoxes`, samples indexed in ``sample_tokens``."""
+    table = pa.concat_tables([pq.read_table(path, schema=BOXES_SCHEMA) for path in paths])
+    position = pc.index_in(table["sample_token"], value_set=pa.array(sample_tokens, pa.string()))
+    if position.null_count:
+        unknown = table["sample_token"].filter(position.is_null())[0].as_py()
+        raise DataFormatError(paths[0].parent, f"boxes of sample {unknown}, which is not in the split",
+                              field="sample_token")
+
+    def vectors(name: str, width: int = 3) -> np.ndarray:
+        column = table[name].combine_chunks()
+        values = np.full((len(column), width), np.nan)
+        valid = column.is_valid().to_numpy(zero_copy_only=False)
+        values[valid] = column.drop_null().flatten().to_numpy().reshape(-1, width)
+        return values
+
+    def strings(name: str) -> np.ndarray:
+        return table[name].fill_null("").to_numpy(zero_copy_only=False).astype(str)
+
+    return AllBoxes(
+        sample=position.to_numpy(zero_copy_only=False).astype(np.int64),
+        kind=strings("kind"), detection_a=strings("detection_a"), detection_b=strings("detection_b"),
+        classes=strings("class"), score=table["score"].to_numpy().astype(np.float64),
+        translation=vectors("translation"), size=vectors("size"),
+        yaw=table["yaw"].to_numpy(zero_copy_only=False).astype(np.float64),
+        dismissed=table["dismissed"].to_numpy(zero_copy_only=False).astype(bool),
+        correct=table["correct"].fill_null(False).to_numpy(zero_copy_only=False).astype(bool),
+        wedges=vectors("wedges", 12))
+
+
 def box_table(boxes: AllBoxes, rows: np.ndarray, default_attribute: dict[str, str]) -> np.ndarray:
     """The selected rows as a results box table (:data:`~sianms_cli.evaluation.boxes.BOX_DTYPE`)."""
-    from sianms_cli.geometry.quaternion import yaw_to_quat
-
     table = np.zeros(len(rows), dtype=BOX_DTYPE)
     table["sample"] = boxes.sample[rows]
-    names = boxes.classes[rows]
-    table["label"] = [LABEL[name] for name in names]
-    table["attribute"] = [ATTRIBUTE[default_attribute[name]] if default_attribute.get(name) else NO_ATTRIBUTE
-                          for name in names]
+    names, index = np.unique(boxes.classes[rows], return_inverse=True)  # a lookup per class, not per box
+    table["label"] = np.array([LABEL[name] for name in names], dtype=np.int8)[index]
+    table["attribute"] = np.array([ATTRIBUTE[default_attribute[name]] if default_attribute.get(name)
+                                   else NO_ATTRIBUTE for name in names], dtype=np.int8)[index]
     table["translation"] = boxes.translation[rows]
     table["size"] = boxes.size[rows]
     table["rotation"] = yaw_to_quat(boxes.yaw[rows])
@@ -67,15 +107,14 @@ def reidentification(boxes: AllBoxes) -> dict[str, dict[str, float]]:
     return out
 
 
-def finish(db: NuScenesDB, config, out: Path, scenes: list[str], timings: dict[str, float],
+def finish(db: NuScenesDB, config, out: Path, scene_paths: list[Path], timings: dict[str, float],
            progress: Progress) -> dict[str, Any]:
     """Write every method's results and metrics, the table and the re-identification figures."""
-    from sianms_cli.pipelines.job import DEFAULT_ATTRIBUTE, METRICS_CONFIG, REGIONS, read_boxes
     from sianms_cli.reporting.eval_pictures import draw_pr_curves
     from sianms_cli.reporting.eval_table import TABLE_CLASS, eval_table, table_markdown
 
     split = eval_split(db, config.split)
-    boxes = read_boxes(out, scenes, list(split.sample_tokens))
+    boxes = read_boxes(scene_paths, list(split.sample_tokens))
     reports: dict[str, MetricsReport] = {}
     counts: dict[str, int] = {}
     figures: dict[str, dict[str, Any]] = {}

@@ -32,17 +32,17 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Iterator
 
-import numpy as np
-import pyarrow as pa
 import pyarrow.parquet as pq
 
 from sianms_cli.data.cache import read_manifest
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
+from sianms_cli.geometry.bev import AXIS_MODES
 from sianms_cli.io import atomic_file, exclusive_lock, make_folder, read_json, release_lock, sha256_of, try_lock, write_json
 from sianms_cli.nuscenes.fingerprint import dataset_fingerprint
 from sianms_cli.nuscenes.loader import NuScenesDB
-from sianms_cli.pipelines.methods import AllBoxes, parse_methods, parse_thresholds
-from sianms_cli.pipelines.scene import BOXES_SCHEMA, SceneEvaluator, SceneSettings
+from sianms_cli.pipelines.finish import finish
+from sianms_cli.pipelines.methods import parse_methods, parse_thresholds
+from sianms_cli.pipelines.scene import SceneEvaluator, SceneSettings
 from sianms_cli.prepare.job import parse_shard, split_scenes
 from sianms_cli.processes import worker_pool
 from sianms_cli.progress import SILENT, Progress
@@ -51,13 +51,6 @@ MARKER = "eval.json"
 SCENES = "scenes"
 LOCK = ".eval.lock"
 KIND = "sianms-eval"
-REGIONS = ("all", "overlap", "overlap:*")
-METRICS_CONFIG = "paper"
-AXIS_MODES = ("ignore-yaw", "nearest-bev", "enclosing")
-DEFAULT_ATTRIBUTE = {"car": "vehicle.parked", "truck": "vehicle.parked", "trailer": "vehicle.parked",
-                     "construction_vehicle": "vehicle.parked", "bus": "vehicle.stopped",
-                     "pedestrian": "pedestrian.standing", "bicycle": "cycle.without_rider",
-                     "motorcycle": "cycle.without_rider", "barrier": "", "traffic_cone": ""}
 
 
 @dataclass(frozen=True)
@@ -332,42 +325,9 @@ def run(config: EvalConfig, out: str | Path, *, overwrite: bool = False, progres
     scenes_seconds = time.perf_counter() - started
     if result.manifest["missing_scenes"]:
         return result
-    from sianms_cli.pipelines.finish import finish
-
     with exclusive_lock(out / LOCK, what=str(out), blocking=True):
         timings = {"scenes_s": scenes_seconds}
-        result.table = finish(db, config, out, names, timings, progress)
+        result.table = finish(db, config, out, [scene_path(out, name) for name in names], timings, progress)
         result.manifest = write_marker(out, resolved, {"timings": timings}, complete=True)
     return result
-
-
-def read_boxes(out: Path, scenes: list[str], sample_tokens: list[str]) -> AllBoxes:
-    """Every scene's boxes table as :class:`AllBoxes`, samples indexed in ``sample_tokens``."""
-    table = pa.concat_tables([pq.read_table(scene_path(out, name), schema=BOXES_SCHEMA) for name in scenes])
-    position = {token: i for i, token in enumerate(sample_tokens)}
-    samples = table["sample_token"].to_pylist()
-    missing = [token for token in samples if token not in position]
-    if missing:
-        raise DataFormatError(out / SCENES, f"boxes of sample {missing[0]}, which is not in the split",
-                              field="sample_token")
-
-    def vectors(name: str, width: int = 3) -> np.ndarray:
-        column = table[name].combine_chunks()
-        values = np.full((len(column), width), np.nan)
-        valid = column.is_valid().to_numpy(zero_copy_only=False)
-        values[valid] = column.drop_null().flatten().to_numpy().reshape(-1, width)
-        return values
-
-    def strings(name: str) -> np.ndarray:
-        return table[name].fill_null("").to_numpy(zero_copy_only=False).astype(str)
-
-    return AllBoxes(
-        sample=np.array([position[token] for token in samples], dtype=np.int64),
-        kind=strings("kind"), detection_a=strings("detection_a"), detection_b=strings("detection_b"),
-        classes=strings("class"), score=table["score"].to_numpy().astype(np.float64),
-        translation=vectors("translation"), size=vectors("size"),
-        yaw=table["yaw"].to_numpy(zero_copy_only=False).astype(np.float64),
-        dismissed=table["dismissed"].to_numpy(zero_copy_only=False).astype(bool),
-        correct=table["correct"].fill_null(False).to_numpy(zero_copy_only=False).astype(bool),
-        wedges=vectors("wedges", 12))
 
