@@ -1,0 +1,104 @@
+"""`sianms demo`: the stages end to end on a tiny profile, resume after an interrupt, the folder rules."""
+
+import json
+from dataclasses import replace
+
+import pytest
+from typer.testing import CliRunner
+
+import sianms_cli.demo as demo
+from sianms_cli.cli import app
+from sianms_cli.demo import DemoConfig, run
+from sianms_cli.errors import OutputExistsError, SianmsError
+
+runner = CliRunner()
+TINY = replace(demo.QUICK, scene_seconds=1.0, siamese_epochs=1, num_points=64, num_object_points=32,
+               nms_sweep="0.1")
+REAL_FPOINTNET = demo.RUNNERS["fpointnet"]
+
+
+@pytest.fixture(scope="module")
+def interrupted_then_resumed(tmp_path_factory):
+    """A demo on the quick profile cut to two 2-key-frame scenes (seconds), interrupted in
+    its F-PointNets stage, then rerun: (stage events of the first run, its record, the rerun's result)."""
+    out = tmp_path_factory.mktemp("demo") / "demo"
+    events = []
+
+    def interrupted(*args):
+        raise KeyboardInterrupt
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setitem(demo.PROFILES, "quick", TINY)
+        patch.setitem(demo.RUNNERS, "fpointnet", interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            run(DemoConfig(quick=True, seed=3), out,
+                on_stage=lambda stage, event, seconds: events.append((stage, event)))
+        record = json.loads((out / "demo.json").read_text())
+        patch.setitem(demo.RUNNERS, "fpointnet", REAL_FPOINTNET)
+        result = run(DemoConfig(quick=True, seed=3), out)
+    return events, record, result
+
+
+def test_an_interrupted_demo_resumes_at_the_stage_it_was_in(interrupted_then_resumed):
+    events, record, result = interrupted_then_resumed
+    assert not record["complete"] and events[-1] == ("fpointnet", "start")
+    assert sorted(record["stages"]) == sorted(["synth", "prepare-train", "prepare-val", "siamese"])
+    assert result.stages_skipped == ["synth", "prepare-train", "prepare-val", "siamese"]
+    assert result.stages_run == ["fpointnet", "eval"]
+    assert result.manifest["complete"] and result.table["table_class"] == "car"
+    assert "rotated-nms@0.1" in result.table["methods"] and "sianms" in result.table["methods"]
+    assert json.loads((result.out / "data" / "sianms-synth.json").read_text())["config"]["seed"] == 3
+    assert json.loads((result.out / "eval" / "eval.json").read_text())["config"]["seed"] == 3
+    shares = demo.stage_shares(result.manifest)
+    assert list(shares) == list(demo.STAGES) and sum(shares.values()) == pytest.approx(1.0)
+
+
+def test_the_cli_on_a_finished_demo_skips_every_stage_and_prints_the_table(interrupted_then_resumed, monkeypatch):
+    monkeypatch.setitem(demo.PROFILES, "quick", TINY)
+    out = str(interrupted_then_resumed[2].out)
+    result = runner.invoke(app, ["demo", "--quick", "--out", out, "--seed", "3"])
+    assert result.exit_code == 0, result.output
+    assert "| Areas |" in result.stdout and "wall time by stage: synth" in result.stdout
+    assert "[1/6] synth: done earlier" in result.stderr
+    result = runner.invoke(app, ["demo", "--quick", "--out", out, "--seed", "3", "--json", "--quiet"])
+    report = json.loads(result.stdout)
+    assert report["config"]["profile"] == "quick" and set(report["stages"]) == set(demo.STAGES)
+    assert report["table"] == interrupted_then_resumed[2].table
+    result = runner.invoke(app, ["demo", "--quick", "--out", out, "--json"])
+    assert result.exit_code == 2 and result.stderr.startswith("error:") and "differs in: seed" in result.stderr
+
+
+def test_an_earlier_demo_of_another_config_is_replaced_only_when_asked_and_only_if_all_its_own(tmp_path):
+    out = tmp_path / "demo"
+    demo.claim_output(out, DemoConfig(seed=1).resolved(), overwrite=False)
+    (out / "data").mkdir()
+    with pytest.raises(OutputExistsError, match="differs in: seed"):
+        demo.claim_output(out, DemoConfig(seed=2).resolved(), overwrite=False)
+    (out / "notes.txt").write_text("mine")
+    with pytest.raises(OutputExistsError, match="notes.txt"):
+        demo.claim_output(out, DemoConfig(seed=2).resolved(), overwrite=True)
+    (out / "notes.txt").unlink()
+    record = demo.claim_output(out, DemoConfig(seed=2).resolved(), overwrite=True)
+    assert record["config"]["seed"] == 2 and sorted(p.name for p in out.iterdir()) == ["demo.json"]
+
+
+def test_a_folder_that_is_not_a_demo_is_never_touched(tmp_path):
+    (tmp_path / "keep.txt").write_text("x")
+    with pytest.raises(OutputExistsError, match="not a sianms demo"):
+        demo.claim_output(tmp_path, DemoConfig().resolved(), overwrite=True)
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(OutputExistsError, match="not a folder"):
+        demo.claim_output(tmp_path / "file", DemoConfig().resolved(), overwrite=True)
+
+
+def test_profiles_and_overrides():
+    assert DemoConfig().settings == demo.DEFAULT and DemoConfig(quick=True).settings == demo.QUICK
+    custom = DemoConfig(scenes=4, siamese_epochs=2, fpointnet_epochs=5).settings
+    assert (custom.scenes, custom.siamese_epochs, custom.fpointnet_epochs) == (4, 2, 5)
+    assert demo.DEFAULT.min_box_height == pytest.approx(25.0 * demo.DEFAULT.image_scale)
+    resolved = DemoConfig(quick=True, seed=4).resolved()
+    assert resolved["profile"] == "quick" and resolved["seed"] == 4 and resolved["scenes"] == demo.QUICK.scenes
+    for kwargs, flag in (({"seed": -1}, "--seed"), ({"scenes": 1}, "--scenes"), ({"scenes": 11}, "--scenes"),
+                         ({"fpointnet_epochs": 0}, "--fpointnet-epochs")):
+        with pytest.raises(SianmsError, match=flag):
+            DemoConfig(**kwargs)
