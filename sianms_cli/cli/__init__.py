@@ -2,7 +2,7 @@
 
 from sianms_cli.cli._app import app
 from sianms_cli.processes import terminate_on_sigterm
-from sianms_cli.cli import demo, evaluate, info, metrics, prepare, synth, train  # noqa: F401  (importing registers the subcommands)
+from sianms_cli.cli import demo, evaluate, info, metrics, prepare, report, synth, train  # noqa: F401  (importing registers the subcommands)
 
 
 def main() -> None:

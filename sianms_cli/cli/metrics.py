@@ -21,7 +21,9 @@ def metrics_cli(
     region: str = typer.Option("all", help="Comma-separated regions: all, overlap, non-overlap, "
                                "'overlap:CAM_A|CAM_B' (one camera pair), 'overlap:*' (every pair)."),
     out: Optional[Path] = typer.Option(None, help="Write the full report as JSON here (atomically)."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing --out file."),
+    details: Optional[Path] = typer.Option(None, help="Write the 101-point curves here (atomically): per region, "
+                                                      "the devkit's metrics_details.json."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing --out or --details file."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
     as_json: bool = typer.Option(False, "--json",
                                  help="Print the report as JSON instead of the table; nothing else goes to stdout."),
@@ -39,10 +41,11 @@ def metrics_cli(
     metrics_config = MetricsConfig(dataroot=str(dataroot), version=version, split=split, results=str(results),
                                    detection_config=config, regions=tuple(region.split(",")))
     with ProgressBar(quiet) as bar:
-        report = run(metrics_config, out, overwrite=overwrite, progress=bar)
+        report = run(metrics_config, out, details=details, overwrite=overwrite, progress=bar)
     if as_json:
         typer.echo(report_json(report))
     else:
         typer.echo(format_metrics(report))
-    if out is not None:
-        typer.echo(f"wrote {out}", err=as_json)
+    for written in (out, details):
+        if written is not None:
+            typer.echo(f"wrote {written}", err=as_json)

@@ -24,19 +24,22 @@ which classes had no ground truth.
 
 from __future__ import annotations
 
+import json
+import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from sianms_cli.errors import DataFormatError, SianmsError
+from sianms_cli.evaluation.algo import NELEM, MetricData
 from sianms_cli.evaluation.boxes import DETECTION_NAMES
 from sianms_cli.evaluation.config import PRESETS, DetectionConfig, load_config
 from sianms_cli.evaluation.dataset import EvalSplit, bicycle_racks, ego_poses, eval_split, ground_truth
 from sianms_cli.evaluation.filters import FilterResult, filter_boxes
-from sianms_cli.evaluation.metrics import evaluate_boxes
+from sianms_cli.evaluation.metrics import evaluate_boxes, threshold_key
 from sianms_cli.evaluation.regions import (
     ALL,
     EVERY_PAIR,
@@ -57,7 +60,7 @@ from sianms_cli.evaluation.results import (
     read_results,
     validate_results,
 )
-from sianms_cli.io import check_writable_output
+from sianms_cli.io import check_writable_output, read_json, write_text
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.tables import check_version_name
 from sianms_cli.nuscenes.rigs import sample_rigs
@@ -122,19 +125,23 @@ def _is_region_name(name: str) -> bool:
     return len(cameras) == 2 and all(cameras) and cameras[0] != cameras[1]
 
 
-def run(config: MetricsConfig, out: str | Path | None = None, *, overwrite: bool = False,
-        progress: Progress = SILENT) -> MetricsReport:
+def run(config: MetricsConfig, out: str | Path | None = None, *, details: str | Path | None = None,
+        overwrite: bool = False, progress: Progress = SILENT) -> MetricsReport:
     """`sianms metrics`: load the dataset, read the results, evaluate, write ``out`` if given.
 
-    ``out`` (the JSON report, :func:`~sianms_cli.evaluation.report.write_report`) is refused
-    before any work when it is a folder, the results file, or exists while ``overwrite`` is
-    false; it is written atomically. ``progress`` hears of the results file's bytes read,
-    then of the regions evaluated.
+    ``out`` (the JSON report, :func:`~sianms_cli.evaluation.report.write_report`) and
+    ``details`` (the 101-point curves of every region, :func:`write_details`) are refused
+    before any work when they are a folder, the results file, the same file, or exist while
+    ``overwrite`` is false; each is written atomically. ``progress`` hears of the results
+    file's bytes read, then of the regions evaluated.
     """
-    if out is not None:
-        if Path(out).resolve() == Path(config.results).resolve():
-            raise SianmsError(f"--out: {out} is the results file; write the report elsewhere")
-        out = check_writable_output(out, overwrite=overwrite)
+    outputs = {flag: path for flag, path in (("--out", out), ("--details", details)) if path is not None}
+    for flag, path in outputs.items():
+        if Path(path).resolve() == Path(config.results).resolve():
+            raise SianmsError(f"{flag}: {path} is the results file; write it elsewhere")
+        check_writable_output(path, overwrite=overwrite)
+    if len(outputs) == 2 and Path(out).resolve() == Path(details).resolve():
+        raise SianmsError(f"--details: {details} is also --out; give each its own file")
     detection = load_config(config.detection_config)
     db = NuScenesDB(config.dataroot, config.version)
     split = eval_split(db, config.split)
@@ -143,10 +150,73 @@ def run(config: MetricsConfig, out: str | Path | None = None, *, overwrite: bool
         progress.start(results_path.stat().st_size, "B", "reading results")
     results = read_results(results_path, max_boxes_per_sample=detection.max_boxes_per_sample,
                            progress=progress.advance)
-    report = evaluate(db, split, results, detection, config.regions, progress=progress)
+    curves: dict[str, dict[str, MetricData]] = {}
+
+    def keep_curves(region: str, gt: np.ndarray, pred: np.ndarray, region_curves: dict) -> None:
+        curves[region] = details_of(region_curves)
+
+    report = evaluate(db, split, results, detection, config.regions, progress=progress,
+                      inspect=keep_curves if details is not None else None)
     if out is not None:
         write_report(out, report, overwrite=overwrite)
+    if details is not None:
+        write_details(details, curves, overwrite=overwrite)
     return report
+
+
+# --------------------------------------------------------------------------- curves: metrics_details.json
+
+
+def detail_key(class_name: str, dist_th: float) -> str:
+    """The devkit's key of one curve in ``metrics_details.json``: ``"car:2.0"``."""
+    return f"{class_name}:{threshold_key(dist_th)}"
+
+
+def details_of(curves: Mapping[tuple[str, float], MetricData]) -> dict[str, MetricData]:
+    """One region's curves (``evaluate``'s ``inspect`` argument) keyed as the devkit's file keys them."""
+    return {detail_key(name, dist_th): data for (name, dist_th), data in curves.items()}
+
+
+def write_details(path: str | Path, details: Mapping[str, Mapping[str, MetricData]], *,
+                  overwrite: bool = False) -> Path:
+    """Write ``{region: {"<class>:<dist_th>": MetricData}}`` atomically as strict JSON.
+
+    Each region's object is the devkit's ``metrics_details.json`` (``MetricData.serialize()``
+    per key); a NaN (a TP error the devkit does not measure for the class) is written as
+    ``null``. Refuses a folder, and an existing file unless ``overwrite``.
+    """
+    content = {region: {key: {name: [value if math.isfinite(value) else None for value in values]
+                              for name, values in data.serialize().items()}
+                        for key, data in by_key.items()}
+               for region, by_key in details.items()}
+    return write_text(check_writable_output(path, overwrite=overwrite), json.dumps(content, allow_nan=False) + "\n")
+
+
+def read_details(path: str | Path) -> dict[str, dict[str, MetricData]]:
+    """Read a file written by :func:`write_details`; DataFormatError names the file and field."""
+    content = read_json(path)
+    if not isinstance(content, dict):
+        raise DataFormatError(path, f"must be an object of regions, got {type(content).__name__}")
+    return {region: {key: _metric_data(path, f"{region}.{key}", data)
+                     for key, data in _object(path, region, by_key).items()}
+            for region, by_key in content.items()}
+
+
+def _object(path: str | Path, field: str, value: Any) -> dict:
+    if not isinstance(value, dict):
+        raise DataFormatError(path, f"must be an object, got {type(value).__name__}", field=field)
+    return value
+
+
+def _metric_data(path: str | Path, field: str, value: Any) -> MetricData:
+    """One ``MetricData.serialize()`` entry: every curve, 101 numbers (``null`` read as NaN)."""
+    curves = _object(path, field, value)
+    for name in MetricData.__dataclass_fields__:
+        values = curves.get(name)
+        if (not isinstance(values, list) or len(values) != NELEM or not all(
+                item is None or (isinstance(item, (int, float)) and not isinstance(item, bool)) for item in values)):
+            raise DataFormatError(path, f"must be a list of {NELEM} numbers or nulls", field=f"{field}.{name}")
+    return MetricData.deserialize(curves)
 
 
 # --------------------------------------------------------------------------- evaluation

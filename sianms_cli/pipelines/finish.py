@@ -21,7 +21,8 @@ from sianms_cli.errors import DataFormatError
 from sianms_cli.evaluation.boxes import ATTRIBUTE, BOX_DTYPE, LABEL, NO_ATTRIBUTE
 from sianms_cli.evaluation.config import load_config
 from sianms_cli.evaluation.dataset import eval_split
-from sianms_cli.evaluation.evaluate import evaluate
+from sianms_cli.evaluation.algo import MetricData
+from sianms_cli.evaluation.evaluate import detail_key, evaluate, write_details
 from sianms_cli.evaluation.report import MetricsReport, write_report
 from sianms_cli.evaluation.results import results_from_boxes, write_results
 from sianms_cli.geometry.quaternion import yaw_to_quat
@@ -34,6 +35,7 @@ from sianms_cli.pipelines.scoring import RegionFigures
 from sianms_cli.progress import Progress
 
 REGIONS = ("all", "overlap", "overlap:*")
+CURVE_REGIONS = ("all", "overlap")  # metrics_details_<method>.json: the regions of Table I
 METRICS_CONFIG = "paper"
 DEFAULT_ATTRIBUTE = {"car": "vehicle.parked", "truck": "vehicle.parked", "trailer": "vehicle.parked",
                      "construction_vehicle": "vehicle.parked", "bus": "vehicle.stopped",
@@ -109,15 +111,17 @@ def reidentification(boxes: AllBoxes) -> dict[str, dict[str, float]]:
 
 def finish(db: NuScenesDB, config, out: Path, scene_paths: list[Path], timings: dict[str, float],
            progress: Progress) -> dict[str, Any]:
-    """Write every method's results and metrics, the table and the re-identification figures."""
+    """Write every method's results, metrics and curves, the table and the re-identification figures."""
     from sianms_cli.reporting.eval_pictures import draw_pr_curves
     from sianms_cli.reporting.eval_table import TABLE_CLASS, eval_table, table_markdown
 
     split = eval_split(db, config.split)
     boxes = read_boxes(scene_paths, list(split.sample_tokens))
+    metrics_config = load_config(METRICS_CONFIG)
     reports: dict[str, MetricsReport] = {}
     counts: dict[str, int] = {}
-    figures: dict[str, dict[str, Any]] = {}
+    duplicates: dict[str, dict[str, dict[str, int]]] = {}
+    curves_at_tp: dict[str, dict[str, MetricData]] = {}
     methods = config.method_names
     progress.start(len(methods), "method", "scoring")
     for method in methods:
@@ -129,17 +133,18 @@ def finish(db: NuScenesDB, config, out: Path, scene_paths: list[Path], timings: 
                                      path=str(out / f"results_{method}.json"))
         write_results(out / f"results_{method}.json", results, overwrite=True)
         started = time.perf_counter()
-        collector = RegionFigures(load_config(METRICS_CONFIG).class_names, load_config(METRICS_CONFIG).dist_th_tp)
-        reports[method] = evaluate(db, split, results, METRICS_CONFIG, REGIONS, inspect=collector.collect)
-        figures[method] = collector.figures
+        collector = RegionFigures(metrics_config.class_names, metrics_config.dist_th_tp, CURVE_REGIONS)
+        reports[method] = evaluate(db, split, results, metrics_config, REGIONS, inspect=collector.collect)
+        duplicates[method] = collector.duplicates
+        key_at_tp = detail_key(TABLE_CLASS, metrics_config.dist_th_tp)
+        curves_at_tp[method] = {region: curves[key_at_tp] for region, curves in collector.curves.items()}
         timings[f"metrics_{method}_s"] = time.perf_counter() - started
         write_report(out / f"metrics_{method}.json", reports[method], overwrite=True)
+        write_details(out / f"metrics_details_{method}.json", collector.curves, overwrite=True)
         progress.advance()
     reid = reidentification(boxes) if any(split_name(m)[0] in (SIANMS, HYBRID, ORACLE) for m in methods) else {}
-    table = eval_table(reports, reid, counts, {m: {r: f["duplicates"] for r, f in v.items()} for m, v in figures.items()})
-    write_json(out / "curves.json", {m: {r: f["pr"] for r, f in v.items()} for m, v in figures.items()})
-    draw_pr_curves(out / "pr_curves.png", {m: {r: f["pr"] for r, f in v.items()} for m, v in figures.items()},
-                   TABLE_CLASS)
+    table = eval_table(reports, reid, counts, duplicates)
+    draw_pr_curves(out / "pr_curves.png", curves_at_tp, TABLE_CLASS, CURVE_REGIONS)
     write_json(out / "table.json", table)
     write_text(out / "table.md", table_markdown(table))
     started = time.perf_counter()

@@ -1,4 +1,4 @@
-"""What `sianms eval` measures besides the nuScenes metrics: duplicates left, precision-recall curves.
+"""What `sianms eval` measures besides the nuScenes metrics: duplicates left, and the curves kept.
 
 A **duplicate** is a prediction that is a false positive at the matching threshold of the TP
 errors (2 m) although a ground-truth box of its class lies within that distance in its
@@ -9,12 +9,11 @@ matching (:func:`sianms_cli.evaluation.algo.greedy_match`).
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
-from sianms_cli.evaluation.algo import greedy_match, processing_order
+from sianms_cli.evaluation.algo import MetricData, greedy_match, processing_order
 from sianms_cli.evaluation.boxes import LABEL
+from sianms_cli.evaluation.evaluate import details_of
 
 
 def near_ground_truth(gt_sample: np.ndarray, gt_xy: np.ndarray, pred_sample: np.ndarray, pred_xy: np.ndarray,
@@ -47,24 +46,18 @@ def duplicates(gt: np.ndarray, pred: np.ndarray, class_name: str, distance: floa
 
 
 class RegionFigures:
-    """Collects, per region, duplicates per class and the precision-recall curves at the TP threshold
-    (the devkit's 101-point interpolated curves, up to the highest recall reached).
+    """Collects, per region, the duplicates per class and, for the regions in ``curve_regions``,
+    the devkit's 101-point curves of every class and threshold (``metrics_details.json``).
 
     Pass :meth:`collect` as ``inspect`` to :func:`sianms_cli.evaluation.evaluate.evaluate`.
     """
 
-    def __init__(self, classes: tuple[str, ...], distance: float) -> None:
-        self.classes, self.distance = classes, distance
-        self.figures: dict[str, dict[str, Any]] = {}
+    def __init__(self, classes: tuple[str, ...], distance: float, curve_regions: tuple[str, ...]) -> None:
+        self.classes, self.distance, self.curve_regions = classes, distance, curve_regions
+        self.duplicates: dict[str, dict[str, int]] = {}
+        self.curves: dict[str, dict[str, MetricData]] = {}
 
     def collect(self, region: str, gt: np.ndarray, pred: np.ndarray, curves: dict) -> None:
-        self.figures[region] = {
-            "duplicates": {name: duplicates(gt, pred, name, self.distance) for name in self.classes},
-            "pr": {name: _reached(curves[(name, self.distance)]) for name in self.classes},
-        }
-
-
-def _reached(curve) -> dict[str, list[float]]:
-    """The devkit's 101-point curve up to the highest recall reached (beyond it, precision is 0 by definition)."""
-    stop = curve.max_recall_ind + 1
-    return {"recall": curve.recall[:stop].tolist(), "precision": curve.precision[:stop].tolist()}
+        self.duplicates[region] = {name: duplicates(gt, pred, name, self.distance) for name in self.classes}
+        if region in self.curve_regions:
+            self.curves[region] = details_of(curves)

@@ -19,6 +19,7 @@ from typing import Mapping
 import numpy as np
 
 from sianms_cli.detection2d.classes import detection_classes_of
+from sianms_cli.evaluation.algo import MetricData
 from sianms_cli.geometry.bev import bev_corners
 from sianms_cli.geometry.quaternion import quat_yaw
 from sianms_cli.geometry.transforms import apply_transform, invert_transform, make_transform
@@ -103,6 +104,17 @@ def draw_sample(path: Path, db: NuScenesDB, sample_token: str, sample: int, boxe
         axes.set_aspect("equal")
         axes.tick_params(labelsize=7)
     figure.suptitle(f"sample {sample_token}  (green: ground truth; thick: a matched pair's box)", fontsize=9)
+    return _save(figure, path)
+
+
+def _reached(curve: MetricData, name: str) -> np.ndarray:
+    """A 101-point curve up to the highest recall reached (beyond it, precision is 0 by definition)."""
+    return getattr(curve, name)[: curve.max_recall_ind + 1]
+
+
+def _save(figure, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
     figure.tight_layout()
     with atomic_file(path) as handle:
         figure.savefig(handle, format="png", dpi=110)
@@ -110,10 +122,16 @@ def draw_sample(path: Path, db: NuScenesDB, sample_token: str, sample: int, boxe
     return path
 
 
-def draw_pr_curves(path: Path, curves: Mapping[str, Mapping[str, Mapping[str, Mapping[str, list]]]],
-                   class_name: str, regions: tuple[str, ...] = ("all", "overlap")) -> Path:
-    """``pr_curves.png``: precision against recall of ``class_name`` at the TP threshold, one
-    panel per region, one line per method ({method: {region: {class: {recall, precision}}}})."""
+def _method_style(method: str) -> dict:
+    """One colour per method family; a swept threshold (``axis-nms@0.1``) dotted."""
+    return {"color": COLOURS.get(split_name(method)[0]), "linestyle": "-" if "@" not in method else ":",
+            "linewidth": 1.2}
+
+
+def draw_pr_curves(path: Path, curves: Mapping[str, Mapping[str, MetricData]], class_name: str,
+                   regions: tuple[str, ...]) -> Path:
+    """``pr_curves.png``: precision against recall of ``class_name`` at the TP threshold (2 m), one
+    panel per region, one line per method; ``curves``: {method: {region: that class's MetricData}}."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -122,10 +140,8 @@ def draw_pr_curves(path: Path, curves: Mapping[str, Mapping[str, Mapping[str, Ma
     figure, panels = plt.subplots(1, len(regions), figsize=(5.0 * len(regions), 4.2), squeeze=False)
     for axes, region in zip(panels[0], regions):
         for method, by_region in curves.items():
-            curve = by_region[region][class_name]
-            base = split_name(method)[0]
-            axes.plot(curve["recall"], curve["precision"], label=method, color=COLOURS.get(base),
-                      linestyle="-" if "@" not in method else ":", linewidth=1.2)
+            curve = by_region[region]
+            axes.plot(_reached(curve, "recall"), _reached(curve, "precision"), label=method, **_method_style(method))
         axes.set_title(f"{class_name}, region {region} (2 m)", fontsize=9)
         axes.set_xlabel("recall")
         axes.set_ylabel("precision")
@@ -133,8 +149,36 @@ def draw_pr_curves(path: Path, curves: Mapping[str, Mapping[str, Mapping[str, Ma
         axes.set_ylim(0, 1.02)
         axes.grid(alpha=0.3)
     panels[0][-1].legend(fontsize=7, loc="upper right")
-    figure.tight_layout()
-    with atomic_file(path) as handle:
-        figure.savefig(handle, format="png", dpi=110)
-    plt.close(figure)
-    return path
+    return _save(figure, path)
+
+
+TP_CURVES = (("trans_err", "ATE (m)"), ("scale_err", "ASE (1 - IoU)"), ("orient_err", "AOE (rad)"))
+
+
+def draw_tp_curves(path: Path, curves: Mapping[str, Mapping[str, MetricData]], class_name: str,
+                   regions: tuple[str, ...], min_recall: float) -> Path:
+    """``tp_curves.png``: each TP error of ``class_name`` against recall, as the devkit's
+    ``class_tp_curve`` draws it (the cumulative mean over true positives, up to the highest
+    recall reached); a row per error, a panel per region, a line per method. The dashed line
+    marks ``min_recall``: the reported error is the curve's mean to the right of it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, panels = plt.subplots(len(TP_CURVES), len(regions), figsize=(5.0 * len(regions), 3.2 * len(TP_CURVES)),
+                                  squeeze=False)
+    for row, (name, label) in zip(panels, TP_CURVES):
+        for axes, region in zip(row, regions):
+            for method, by_region in curves.items():
+                curve = by_region[region]
+                axes.plot(_reached(curve, "recall"), _reached(curve, name), label=method, **_method_style(method))
+            axes.axvline(min_recall, color="0.5", linestyle="--", linewidth=0.8)
+            axes.set_title(f"{class_name}, region {region}: {label}", fontsize=9)
+            axes.set_xlabel("recall")
+            axes.set_ylabel(label)
+            axes.set_xlim(0, 1)
+            axes.set_ylim(bottom=0)
+            axes.grid(alpha=0.3)
+    panels[0][-1].legend(fontsize=7, loc="upper right")
+    return _save(figure, path)

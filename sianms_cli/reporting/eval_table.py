@@ -79,7 +79,8 @@ def eval_table(reports: Mapping[str, MetricsReport], reid: Mapping[str, Any], bo
     }
 
 
-def _cell(value: float | None, column: str) -> str:
+def format_cell(value: float | None, column: str) -> str:
+    """A figure of :data:`COLUMNS` as every table prints it: AP and ASE (%) to 0.1, ATE and AOE to 0.001."""
     if value is None:
         return "-"
     return f"{value:.1f}" if column in ("AP", "ASE") else f"{value:.3f}"
@@ -98,17 +99,17 @@ def table_markdown(table: Mapping[str, Any]) -> str:
                   "|---|" + "---|" * (len(paper_methods) * len(COLUMNS))]
         for region, label in REGIONS_SHOWN:
             figures = table["regions"][region]
-            lines.append(f"| {label} | " + " | ".join(_cell(figures[m][name][c], c) for m in paper_methods
+            lines.append(f"| {label} | " + " | ".join(format_cell(figures[m][name][c], c) for m in paper_methods
                                                       for c in COLUMNS) + " |")
         for label, row in table["paper_table_i"].items():
-            lines.append(f"| {label} (paper) | " + " | ".join(_cell(v, c) for m in paper_methods
+            lines.append(f"| {label} (paper) | " + " | ".join(format_cell(v, c) for m in paper_methods
                                                               for v, c in zip(row[m], COLUMNS)) + " |")
     lines += ["", "Every method (NMS at IoU 0.3 unless named `@threshold`; *best* = best car AP of its family "
                   "over the split):", "",
               "| method | " + " | ".join(f"{label} {c}" for _, label in REGIONS_SHOWN for c in COLUMNS) + " |",
               "|---|" + "---|" * (len(REGIONS_SHOWN) * len(COLUMNS))]
     for m in methods:
-        cells = [_cell(table["regions"][region][m][name][c], c) for region, _ in REGIONS_SHOWN for c in COLUMNS]
+        cells = [format_cell(table["regions"][region][m][name][c], c) for region, _ in REGIONS_SHOWN for c in COLUMNS]
         lines.append(f"| {m}{' (best)' if m in best else ''} | " + " | ".join(cells) + " |")
     classes = table["classes"]
     lines += ["", f"AP (%) per class, boxes reported, and {name} duplicates left (false positives within 2 m of a "
@@ -118,29 +119,30 @@ def table_markdown(table: Mapping[str, Any]) -> str:
               "|---|---|" + "---|" * (len(classes) * len(REGIONS_SHOWN) + len(REGIONS_SHOWN))]
     for m in methods:
         lines.append(f"| {m} | {table['boxes'][m]} | " + " | ".join(
-            _cell(table["regions"][region][m][c]["AP"], "AP") for c in classes for region, _ in REGIONS_SHOWN)
+            format_cell(table["regions"][region][m][c]["AP"], "AP") for c in classes for region, _ in REGIONS_SHOWN)
             + " | " + " | ".join(str(table["duplicates"][m][region][name]) for region, _ in REGIONS_SHOWN) + " |")
     pairs = table["pair_regions"]
     if pairs:
         lines += ["", f"{name} AP (%) per camera pair (overlap region):", "",
-                  "| method | " + " | ".join(_pair_label(p) for p in pairs) + " |",
+                  "| method | " + " | ".join(pair_label(p) for p in pairs) + " |",
                   "|---|" + "---|" * len(pairs)]
         for m in methods:
-            lines.append(f"| {m} | " + " | ".join(_cell(table["regions"][p][m][name]["AP"], "AP") for p in pairs) + " |")
+            lines.append(f"| {m} | " + " | ".join(format_cell(table["regions"][p][m][name]["AP"], "AP") for p in pairs) + " |")
     if table["reidentification"]:
         lines += ["", "Re-identification against ground-truth identity (pairs to find: the oracle's):", "",
                   "| matcher | matched | correct | to find | precision | recall | F1 | dismissed (frustums apart) |",
                   "|---|---|---|---|---|---|---|---|"]
         for matcher, f in table["reidentification"].items():
             lines.append(f"| {matcher} | {f['pairs_matched']} | {f['pairs_correct']} | {f['pairs_true']} | "
-                         f"{_ratio(f['precision'])} | {_ratio(f['recall'])} | {_ratio(f['f1'])} | {f['dismissed']} |")
+                         f"{format_ratio(f['precision'])} | {format_ratio(f['recall'])} | {format_ratio(f['f1'])} | {f['dismissed']} |")
     return "\n".join(lines) + "\n"
 
 
-def _pair_label(region: str) -> str:
+def pair_label(region: str) -> str:
     """``overlap:CAM_FRONT|CAM_FRONT_RIGHT`` -> ``FRONT / FRONT_RIGHT`` (a bar would split a Markdown cell)."""
     return " / ".join(name.removeprefix("CAM_") for name in region.removeprefix("overlap:").split("|"))
 
 
-def _ratio(value: float) -> str:
+def format_ratio(value: float | None) -> str:
+    """A re-identification precision, recall or F1 to 0.001; ``-`` where undefined."""
     return "-" if value is None or not math.isfinite(value) else f"{value:.3f}"

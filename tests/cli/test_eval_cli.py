@@ -19,6 +19,10 @@ def test_eval_cli_prints_the_table_and_reports_bad_inputs_in_one_line(eval_input
     assert result.exit_code == 0, result.output
     assert "| Areas |" in result.output and "vanilla" in result.output
     assert len(list((out / "pictures").glob("*.png"))) <= 1
+    assert (out / "metrics_details_sianms.json").is_file() and not (out / "curves.json").exists()
+    report = runner.invoke(app, ["report", str(out), "--quiet"])
+    assert report.exit_code == 0, report.output
+    assert f"wrote {out / 'report' / 'report.html'}" in report.output
     result = runner.invoke(app, arguments(eval_inputs, out, "--methods", "vanilla,sianms", "--pictures", "1",
                                           "--json"))
     assert result.exit_code == 0 and json.loads(result.output)["complete"]

@@ -106,6 +106,21 @@ def test_out_is_written_once_then_needs_overwrite(data, tmp_path):
     assert invoke(data, "--out", str(out), "--overwrite").exit_code == 0
 
 
+def test_details_hold_every_region_and_need_overwrite(data, tmp_path):
+    details, out = tmp_path / "details.json", tmp_path / "m.json"
+    result = invoke(data, "--region", "all,overlap", "--details", str(details), "--out", str(out), "--json")
+    assert result.exit_code == 0, result.output
+    assert result.stderr.splitlines() == [f"wrote {out}", f"wrote {details}"]
+    curves = json.loads(details.read_text())
+    assert list(curves) == ["all", "overlap"] and "car:0.5" in curves["all"] and "barrier:4.0" in curves["overlap"]
+    assert set(curves["all"]["car:2.0"]) == {"recall", "precision", "confidence", "trans_err", "vel_err",
+                                              "scale_err", "orient_err", "attr_err"}
+    assert invoke(data, "--details", str(details)).exit_code == 2
+    assert invoke(data, "--details", str(details), "--overwrite").exit_code == 0
+    result = invoke(data, "--details", str(out), "--out", str(out), "--overwrite")
+    assert result.exit_code == 2 and "--details: " in result.output and "is also --out" in result.output
+
+
 def test_user_config_file(data, tmp_path):
     config = tmp_path / "cfg.json"
     config.write_text(json.dumps({"class_range": {"car": 20, "traffic_cone": 25}}))

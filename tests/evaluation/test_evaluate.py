@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from metrics_reference import reference_script
-from sianms_cli.errors import OutputExistsError, SianmsError
+from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
 from sianms_cli.evaluation import (
     Results,
     ResultsFormatError,
@@ -20,7 +20,7 @@ from sianms_cli.evaluation import (
     read_results,
 )
 from sianms_cli.evaluation.boxes import empty_boxes, make_boxes
-from sianms_cli.evaluation.evaluate import MetricsConfig, run
+from sianms_cli.evaluation.evaluate import MetricsConfig, detail_key, read_details, run
 from sianms_cli.io import OutputError
 
 SUMMARY_KEYS = {"label_aps", "mean_dist_aps", "mean_ap", "label_tp_errors", "tp_errors", "tp_scores", "nd_score",
@@ -141,6 +141,32 @@ def test_run_writes_the_report_and_refuses_to_clobber(reference_folder, tmp_path
     run(_config(reference_folder, detection_config="paper"), out, overwrite=True)
     assert list(json.loads(out.read_text())["regions"]["all"]["label_aps"]) == ["car", "pedestrian", "bicycle"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["metrics.json"]
+
+
+def test_details_are_the_curves_evaluate_computed(reference_folder, reference_db, tmp_path):
+    config = _config(reference_folder, regions=("all", "overlap"))
+    details = tmp_path / "details.json"
+    report = run(config, details=details)
+    computed = {}
+    evaluate(reference_db, config.split, read_results(config.results), config.detection_config, config.regions,
+             inspect=lambda region, gt, pred, curves: computed.setdefault(region, curves))
+    written = read_details(details)
+    assert list(written) == ["all", "overlap"]
+    assert written["all"] == {f"{name}:{float(th)}": data for (name, th), data in computed["all"].items()}
+    assert written["overlap"] == {detail_key(name, th): data for (name, th), data in computed["overlap"].items()}
+    assert len(written["all"]) == len(report.cfg.class_names) * len(report.cfg.dist_ths)
+    json.loads(details.read_text(), parse_constant=lambda name: pytest.fail(f"{name} in strict JSON"))
+    with pytest.raises(OutputExistsError):
+        run(config, details=details)
+    with pytest.raises(SianmsError, match="--details: .* is the results file"):
+        run(config, details=config.results, overwrite=True)
+
+
+def test_details_that_are_malformed_name_the_field(tmp_path):
+    bad = tmp_path / "details.json"
+    bad.write_text(json.dumps({"all": {"car:2.0": {"recall": [0.0] * 101}}}))
+    with pytest.raises(DataFormatError, match=r"details.json: field 'all.car:2.0.precision': must be a list of 101"):
+        read_details(bad)
 
 
 def test_run_refuses_the_output_before_any_work(reference_folder, tmp_path):

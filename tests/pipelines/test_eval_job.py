@@ -8,10 +8,14 @@ import pyarrow.parquet as pq
 import pytest
 
 from sianms_cli.errors import DataFormatError, OutputExistsError
+from sianms_cli.evaluation.algo import calc_ap
+from sianms_cli.evaluation.evaluate import read_details
 from sianms_cli.evaluation.results import read_results
 from sianms_cli.pipelines.job import EvalConfig, run
 from sianms_cli.pipelines.methods import METHODS
 from sianms_cli.progress import SILENT
+from sianms_cli.reporting.eval_table import format_cell
+from sianms_cli.reporting.report import ReportConfig, run as run_report
 
 
 def config_of(inputs, **fields):
@@ -40,10 +44,31 @@ def test_every_method_writes_valid_results_metrics_and_the_table(evaluated):
         assert np.all(results.boxes["size"] > 0)
         metrics = json.loads((out / f"metrics_{name}.json").read_text())
         assert "all" in metrics["regions"] and "overlap" in metrics["regions"]
+        curves = read_details(out / f"metrics_details_{name}.json")
+        assert list(curves) == ["all", "overlap"] and len(curves["all"]) == 3 * 4  # paper classes x thresholds
+        aps = [calc_ap(curves["all"][f"car:{th}"], 0.1, 0.1) for th in ("0.5", "1.0", "2.0", "4.0")]
+        assert 100 * np.mean(aps) == pytest.approx(result.table["regions"]["all"][name]["car"]["AP"], abs=1e-9)
+    assert not (out / "curves.json").exists() and (out / "pr_curves.png").is_file()
     counts = result.table["boxes"]
     assert counts["vanilla"] >= max(counts[name] for name in names)
     assert counts["hybrid"] <= counts["sianms"]
     assert "| Areas |" in (out / "table.md").read_text()
+
+
+def test_the_report_of_a_real_evaluation_shows_its_table(evaluated, tmp_path):
+    out, result = evaluated
+    report = run_report(ReportConfig(eval=str(out)), tmp_path / "report")
+    rows = [line.strip("| ").split(" | ") for line in report.markdown.splitlines()
+            if line.startswith(("| All |", "| Overlap |"))]
+    shown = {(row[0], row[1].removesuffix(" (best)")): row[2:6] + row[10:] for row in rows}
+    for region, label in (("all", "All"), ("overlap", "Overlap")):
+        for method in result.table["methods"]:
+            figures = result.table["regions"][region][method]["car"]
+            assert shown[(label, method)] == [*(format_cell(figures[c], c) for c in ("AP", "ATE", "ASE", "AOE")),
+                                              str(figures["gt"]), str(figures["pred"])]
+    assert {path.name for path in report.out.iterdir()} >= {"pr_curves.png", "tp_curves.png", "report.html"}
+    same = run_report(ReportConfig(eval=str(out), baseline=str(out)), tmp_path / "gate")
+    assert same.regressions == [] and len(same.content["comparison"]["cells"]) == 2 * 4 * len(result.table["methods"])
 
 
 def test_the_oracle_matches_only_one_instance_and_sianms_is_scored_against_it(evaluated):

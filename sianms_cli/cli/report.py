@@ -1,0 +1,54 @@
+"""`sianms report`: an evaluation's Table I as Markdown, HTML and JSON; with --baseline, a regression gate."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from sianms_cli.cli._app import ProgressBar, command
+
+# Kept here as text so that `-h` imports no library code; a test checks it equals the library's defaults.
+DEFAULT_ALLOWANCES_TEXT = "ap=0.5,ate=0.02,ase=0.5,aoe=0.02,reid=0.05"
+
+
+@command("report")
+def report_cli(
+    eval_folder: Path = typer.Argument(..., metavar="EVAL", help="A complete `sianms eval` output folder."),
+    baseline: Optional[Path] = typer.Option(None, help="Compare with this evaluation folder or report.json (a "
+                                                       "report.json is what a repository commits for CI)."),
+    max_drop: Optional[str] = typer.Option(None, help="Allowances over the defaults "
+                                                      f"{DEFAULT_ALLOWANCES_TEXT}: AP drop in points, ATE rise in m, "
+                                                      "ASE rise in points, AOE rise in rad, re-identification "
+                                                      "precision/recall/F1 drop as a fraction."),
+    force: bool = typer.Option(False, "--force", help="Compare even when the runs' comparable configs differ."),
+    out: Optional[Path] = typer.Option(None, help="Report folder to write [default: EVAL/report]."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing report folder."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+    as_json: bool = typer.Option(False, "--json", help="Print report.json; nothing else goes to stdout."),
+) -> None:
+    """Table I of an evaluation with the paper's numbers beside, re-identification, duplicates, timings and
+    curves, written as report.md, a self-contained report.html and report.json.
+
+    With --baseline, every Table I cell and re-identification figure is compared: exit code 1 when any
+    regresses beyond its allowance (listed), 0 otherwise, 2 on bad input or differing configs.
+    """
+    import json
+
+    from sianms_cli.reporting.report import ReportConfig, regression_lines, run
+
+    config = ReportConfig(eval=str(eval_folder), baseline=None if baseline is None else str(baseline),
+                          max_drop=max_drop, force=force)
+    with ProgressBar(quiet) as bar:
+        report = run(config, out, overwrite=overwrite, progress=bar)
+    if as_json:
+        typer.echo(json.dumps(report.content, indent=2, allow_nan=False))
+    else:
+        typer.echo(report.markdown)
+        typer.echo(f"wrote {report.html}")
+    if report.regressions:
+        typer.echo(f"{len(report.regressions)} cell(s) regressed beyond the allowances:", err=True)
+        for line in regression_lines(report.regressions):
+            typer.echo(f"  {line}", err=True)
+        raise typer.Exit(1)

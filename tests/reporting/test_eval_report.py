@@ -1,0 +1,372 @@
+"""`sianms report` as a library: Table I of one evaluation, the regression gate against a baseline, the outputs.
+
+The evaluation folders here are written by hand (eval.json, table.json, metrics and details
+files with the fields `sianms eval` writes), so every figure is known; the report of a real
+evaluation is checked in tests/pipelines/test_eval_job.py.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import os
+import shutil
+from html.parser import HTMLParser
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
+from sianms_cli.evaluation.algo import NELEM, MetricData
+from sianms_cli.evaluation.config import load_config
+from sianms_cli.evaluation.evaluate import write_details
+from sianms_cli.reporting.eval_table import PAPER_TABLE_I, format_cell, format_ratio
+from sianms_cli.reporting.report import DEFAULT_ALLOWANCES, ReportConfig, parse_allowances, run
+
+METHODS = ("vanilla", "axis-nms", "sianms", "oracle")
+CLASSES = ("car", "pedestrian", "bicycle")
+PAIR = "overlap:CAM_FRONT|CAM_FRONT_RIGHT"
+REGIONS = ("all", "overlap", PAIR)
+PNG = base64.b64decode("iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAYAAAAfFcSJAAAADUlEQVR42mNkYPhfDwAChwGA60e6kgAAAABJRU5ErkJggg==")
+CONFIG = {"split": "mini_val", "split_scenes": ["scene-0103", "scene-0916"], "dataset_sha256": "d" * 64,
+          "methods": list(METHODS), "nms_sweep": None, "axis_mode": "ignore-yaw", "sianms_classes": ["car"],
+          "max_distance": 50.0, "seed": 0, "pictures": 1, "version": "v1.0-mini", "dis_thr": 0.8,
+          "cache_sha256": "c" * 64, "siamese_sha256": "s" * 64, "fpointnet_sha256": "f" * 64}
+
+
+def cell(method: int, region: int, name: str) -> dict:
+    """Figures with digits past the printed precision, so formatting is tested too; bicycle has no GT."""
+    if name == "bicycle":
+        return {"AP": None, "ATE": None, "ASE": None, "AOE": None, "gt": 0, "pred": 3}
+    base = 31.2345 + 1.1111 * method - 7.777 * region + (5.5 if name == "pedestrian" else 0.0)
+    return {"AP": base, "ATE": 0.61234 + 0.01 * method + 0.1 * region, "ASE": 24.5678 - 0.3 * method,
+            "AOE": 1.38123 - 0.01 * method, "gt": 605 - 539 * min(region, 1), "pred": 700 - 20 * method}
+
+
+def table_of(methods) -> dict:
+    return {
+        "table_class": "car", "classes": list(CLASSES), "pair_regions": [PAIR],
+        "units": {"AP": "%", "ATE": "m", "ASE": "% (1 - IoU)", "AOE": "rad"}, "methods": list(methods),
+        "boxes": {m: 1000 - 10 * i for i, m in enumerate(methods)},
+        "regions": {region: {m: {name: cell(i, r, name) for name in CLASSES} for i, m in enumerate(methods)}
+                    for r, region in enumerate(REGIONS)},
+        "best_nms": {"axis-nms": "axis-nms"} if "axis-nms" in methods else {},
+        "duplicates": {m: {region: {name: 27 - 5 * i - r for name in CLASSES} for r, region in enumerate(REGIONS)}
+                       for i, m in enumerate(methods)},
+        "reidentification": {"sianms": {"precision": 0.7123, "recall": 0.8456, "f1": 0.7732, "pairs_matched": 60,
+                                        "pairs_correct": 43, "pairs_true": 48, "dismissed": 12},
+                             "oracle": {"precision": 1.0, "recall": 1.0, "f1": 1.0, "pairs_matched": 48,
+                                        "pairs_correct": 48, "pairs_true": 48, "dismissed": 3}},
+        "paper_table_i": PAPER_TABLE_I,
+    }
+
+
+def curve(scale: float) -> MetricData:
+    """A class's 101-point curves: recall reached up to 0.6, precision falling, errors growing."""
+    recall = np.linspace(0, 1, NELEM)
+    reached = recall <= 0.6
+    return MetricData(recall, np.where(reached, 1 - 0.5 * recall, 0), np.where(reached, 1 - recall, 0),
+                      *(np.where(reached, scale * (0.2 + recall), 1.0) for _ in range(5)))
+
+
+def make_eval(folder: Path, *, methods=METHODS, details: bool = False, **config_changes) -> Path:
+    """An evaluation folder as `sianms eval` leaves it when complete."""
+    folder.mkdir(parents=True)
+    config = {**CONFIG, "methods": list(methods), **config_changes}
+    marker = {"kind": "sianms-eval", "config": config, "complete": True, "scenes_expected": 2, "scenes_finished": 2,
+              "missing_scenes": [], "timings": {"scenes_s": 30.0, "select_vanilla_s": 0.5, "metrics_vanilla_s": 4.5,
+                                                "pictures_s": 5.0}}
+    (folder / "eval.json").write_text(json.dumps(marker))
+    (folder / "table.json").write_text(json.dumps(table_of(methods)))
+    for i, method in enumerate(methods):
+        (folder / f"metrics_{method}.json").write_text(json.dumps({"schema": "sianms-metrics",
+                                                                   "cfg": load_config("paper").serialize()}))
+        if details:
+            write_details(folder / f"metrics_details_{method}.json",
+                          {region: {"car:2.0": curve(1 + 0.1 * i)} for region in ("all", "overlap")})
+    (folder / "pictures").mkdir()
+    (folder / "pictures" / "sample0.png").write_bytes(PNG)
+    return folder
+
+
+def edit_table(folder: Path, change) -> None:
+    table = json.loads((folder / "table.json").read_text())
+    change(table)
+    (folder / "table.json").write_text(json.dumps(table))
+
+
+class Cells(HTMLParser):
+    """Every <table> of a page as {id: [[cell text, ...], ...]}, and every attribute value seen."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.tables: dict[str, list[list[str]]] = {}
+        self.attributes: list[tuple[str, str]] = []
+        self.tags: list[str] = []
+        self._table = self._row = self._cell = None
+
+    def handle_starttag(self, tag, attrs):
+        self.tags.append(tag)
+        self.attributes += [(name, value or "") for name, value in attrs]
+        if tag == "table":
+            self._table = self.tables.setdefault(dict(attrs)["id"], [])
+        elif tag == "tr":
+            self._row = []
+            self._table.append(self._row)
+        elif tag in ("td", "th"):
+            self._cell = []
+
+    def handle_endtag(self, tag):
+        if tag in ("td", "th"):
+            self._row.append("".join(self._cell))
+            self._cell = None
+
+    def handle_data(self, data):
+        if self._cell is not None:
+            self._cell.append(data)
+
+
+def parse_html(path: Path) -> Cells:
+    parser = Cells()
+    parser.feed(path.read_text())
+    return parser
+
+
+@pytest.fixture
+def evaluation(tmp_path) -> Path:
+    return make_eval(tmp_path / "eval")
+
+
+def test_table_i_in_html_equals_table_json(evaluation):
+    report = run(ReportConfig(eval=str(evaluation)))
+    assert report.out == evaluation.resolve() / "report" and report.regressions == []
+    table = json.loads((evaluation / "table.json").read_text())
+    rows = parse_html(report.html).tables["table-i"]
+    assert rows[0] == ["region", "method", "AP", "ATE", "ASE", "AOE", "paper AP", "paper ATE", "paper ASE",
+                       "paper AOE", "GT boxes", "predictions"]
+    expected = []
+    for region, label in (("all", "All"), ("overlap", "Overlap")):
+        for method in METHODS:
+            figures = table["regions"][region][method]["car"]
+            paper = PAPER_TABLE_I[label].get(method, (None,) * 4)
+            expected.append([label, method + (" (best)" if method == "axis-nms" else ""),
+                             *(format_cell(figures[c], c) for c in ("AP", "ATE", "ASE", "AOE")),
+                             *(format_cell(v, c) for v, c in zip(paper, ("AP", "ATE", "ASE", "AOE"))),
+                             str(figures["gt"]), str(figures["pred"])])
+    assert rows[1:] == expected
+    assert rows[1][2:6] == ["31.2", "0.612", "24.6", "1.381"] and rows[5][-2] == "66"  # overlap: 66 GT cars
+    assert report.content["regions"] == table["regions"]  # every cell of table.json, every class and region
+    markdown = (report.out / "report.md").read_text()
+    assert markdown == report.markdown and "| All | vanilla | 31.2 | 0.612 | 24.6 | 1.381 | 45.5 |" in markdown
+
+
+def test_reidentification_duplicates_and_timings(evaluation):
+    report = run(ReportConfig(eval=str(evaluation)))
+    tables = parse_html(report.html).tables
+    assert tables["reidentification"][1] == ["sianms", "60", "43", "48", format_ratio(0.7123), format_ratio(0.8456),
+                                             "0.773", "12"]
+    assert tables["duplicates"][0] == ["method", "All", "Overlap", "FRONT / FRONT_RIGHT"]
+    assert tables["duplicates"][2] == ["axis-nms", "22", "21", "20"]
+    assert tables["timings"][1:] == [["scenes", "30.00", "75.0 %"], ["pictures", "5.00", "12.5 %"],
+                                     ["metrics_vanilla", "4.50", "11.2 %"], ["select_vanilla", "0.50", "1.2 %"],
+                                     ["total", "40.00", "100.0 %"]]
+    content = json.loads((report.out / "report.json").read_text())
+    assert content == report.content and content["schema"] == "sianms-report" and content["schema_version"] == 1
+    assert set(content["config"]) == {"split", "split_scenes", "dataset_sha256", "methods", "nms_sweep", "axis_mode",
+                                      "sianms_classes", "max_distance", "seed", "metrics"}
+    assert content["fingerprints"]["dis_thr"] == 0.8 and "comparison" not in content
+
+
+def test_html_is_self_contained_and_embeds_every_picture(tmp_path):
+    evaluation = make_eval(tmp_path / "eval", details=True)
+    out = tmp_path / "elsewhere" / "report"
+    report = run(ReportConfig(eval=str(evaluation)), out)
+    page = report.html.read_text()
+    assert "http://" not in page and "https://" not in page and "<script" not in page
+    parsed = parse_html(report.html)
+    sources = [value for name, value in parsed.attributes if name in ("src", "href")]
+    assert len(sources) == 3 and all(value.startswith("data:image/png;base64,") for value in sources)
+    assert base64.b64decode(sources[2].split(",", 1)[1]) == PNG
+    assert sorted(path.name for path in out.iterdir()) == ["pr_curves.png", "report.html", "report.json", "report.md",
+                                                           "tp_curves.png"]
+    links = [line.split("](")[1].rstrip(")") for line in report.markdown.splitlines() if line.startswith("![")]
+    assert links[:2] == ["pr_curves.png", "tp_curves.png"]
+    assert all((out / link).resolve().is_file() for link in links)  # the pictures' links reach EVAL/pictures
+
+
+def test_without_details_the_report_says_so(evaluation):
+    report = run(ReportConfig(eval=str(evaluation)))
+    assert "No curves: the evaluation has no metrics_details_vanilla.json" in report.markdown
+    assert not (report.out / "pr_curves.png").exists()
+
+
+@pytest.mark.parametrize(("damage", "field"), [
+    (lambda folder: (folder / "eval.json").unlink(), "eval.json: file not found"),
+    (lambda folder: _edit_marker(folder, kind="sianms-demo"), "eval.json: field 'kind': not a sianms evaluation"),
+    (lambda folder: _edit_marker(folder, complete=False, missing_scenes=["scene-0916"]),
+     "eval.json: field 'complete': the evaluation is not complete (missing scenes: scene-0916)"),
+    (lambda folder: edit_table(folder, lambda t: t["regions"]["overlap"].pop("sianms")),
+     "table.json: field 'regions.overlap.sianms.car': missing"),
+    (lambda folder: _edit_marker(folder, timings={"scenes_s": "slow"}),
+     "eval.json: field 'timings.scenes_s': must be a number of seconds"),
+    (lambda folder: (folder / "metrics_vanilla.json").write_text("{}"), "metrics_vanilla.json: field 'cfg': must be"),
+])
+def test_an_incomplete_or_foreign_evaluation_is_refused(evaluation, damage, field):
+    damage(evaluation)
+    with pytest.raises(DataFormatError) as caught:
+        run(ReportConfig(eval=str(evaluation)))
+    assert field in str(caught.value)
+    assert not (evaluation / "report").exists()
+
+
+def _edit_marker(folder: Path, **changes) -> None:
+    marker = json.loads((folder / "eval.json").read_text())
+    (folder / "eval.json").write_text(json.dumps({**marker, **changes}))
+
+
+def test_identical_runs_pass_and_every_cell_is_compared(evaluation, tmp_path):
+    baseline = make_eval(tmp_path / "baseline", siamese_sha256="0" * 64, dis_thr=0.7)  # fingerprints may differ
+    report = run(ReportConfig(eval=str(evaluation), baseline=str(baseline)))
+    comparison = report.content["comparison"]
+    assert report.regressions == [] and len(comparison["cells"]) == 2 * len(METHODS) * 4
+    assert len(comparison["reidentification"]) == 2 * 3
+    assert all(row["difference"] == 0 for row in comparison["cells"])
+    assert comparison["fingerprints_changed"] == ["dis_thr", "siamese_sha256"]
+    assert comparison["allowances"] == dict(DEFAULT_ALLOWANCES)
+    assert "No regression beyond the allowances" in report.markdown
+
+
+def test_a_planted_regression_names_its_cell(evaluation, tmp_path):
+    baseline = shutil.copytree(evaluation, tmp_path / "baseline")
+
+    def lower(drop):
+        def change(table):
+            table["regions"]["overlap"]["sianms"]["car"]["AP"] = cell(2, 1, "car")["AP"] - drop
+            table["regions"]["all"]["vanilla"]["car"]["ATE"] = cell(0, 0, "car")["ATE"] + 0.02  # the allowance exactly
+        return change
+
+    edit_table(evaluation, lower(1.0))
+    report = run(ReportConfig(eval=str(evaluation), baseline=str(baseline)))
+    assert [(r["region"], r["method"], r["metric"]) for r in report.regressions] == [("overlap", "sianms", "AP")]
+    regression = report.regressions[0]
+    assert regression["baseline"] - regression["now"] == pytest.approx(1.0) and regression["allowance"] == 0.5
+    assert regression["why"] == "dropped by 1"
+    rows = parse_html(report.html).tables
+    assert rows["regressions"][1][:3] == ["overlap", "sianms", "AP"]
+    assert '<td class="regressed">24.7</td><td class="regressed">-1.0</td>' in report.html.read_text()
+    assert run(ReportConfig(eval=str(evaluation), baseline=str(baseline), max_drop="ap=1.5"), overwrite=True
+               ).regressions == []
+    edit_table(evaluation, lower(0.4))
+    assert run(ReportConfig(eval=str(evaluation), baseline=str(baseline)), overwrite=True).regressions == []
+
+
+def test_errors_rising_and_reidentification_dropping_regress(evaluation, tmp_path):
+    baseline = shutil.copytree(evaluation, tmp_path / "baseline")
+
+    def worse(table):
+        table["regions"]["all"]["oracle"]["car"]["AOE"] += 0.05
+        table["reidentification"]["sianms"]["f1"] -= 0.06
+        table["regions"]["overlap"]["vanilla"]["car"]["ASE"] -= 3.0  # an improvement is never a regression
+
+    edit_table(evaluation, worse)
+    report = run(ReportConfig(eval=str(evaluation), baseline=str(baseline)))
+    assert [(r["region"], r["method"], r["metric"]) for r in report.regressions] == [
+        ("all", "oracle", "AOE"), ("re-identification", "sianms", "f1")]
+
+
+def test_a_missing_figure_regresses_and_no_figure_in_both_is_fine(evaluation, tmp_path):
+    baseline = make_eval(tmp_path / "baseline", methods=METHODS + ("hybrid",))
+
+    def blank(table):
+        for figures in table["regions"]["overlap"].values():
+            figures["car"]["AOE"] = None
+
+    edit_table(evaluation, blank)
+    edit_table(baseline, blank)
+    with pytest.raises(SianmsError, match=r"differs in: methods\); pass --force"):
+        run(ReportConfig(eval=str(evaluation), baseline=str(baseline)))
+    report = run(ReportConfig(eval=str(evaluation), baseline=str(baseline), force=True))
+    assert {(r["region"], r["method"], r["why"]) for r in report.regressions} == {
+        ("all", "hybrid", "no figure now"), ("overlap", "hybrid", "no figure now")}
+    assert len(report.regressions) == 4 + 3  # All: AP ATE ASE AOE; Overlap: AOE is None in the baseline too
+    assert report.content["comparison"]["config_differences"] == ["methods"]
+
+
+def test_runs_of_another_config_are_refused_unless_forced(evaluation, tmp_path):
+    baseline = make_eval(tmp_path / "baseline", split_scenes=["scene-0103"], seed=2)
+    with pytest.raises(SianmsError) as caught:
+        run(ReportConfig(eval=str(evaluation), baseline=str(baseline)))
+    assert "differs in: split_scenes, seed" in str(caught.value) and not (evaluation / "report").exists()
+    report = run(ReportConfig(eval=str(evaluation), baseline=str(baseline), force=True))
+    assert report.regressions == [] and report.content["comparison"]["forced"]
+    assert "although the configs differ in: split_scenes, seed" in report.markdown
+
+
+def test_a_report_json_is_a_baseline_equal_to_its_evaluation(evaluation, tmp_path):
+    baseline = shutil.copytree(evaluation, tmp_path / "baseline")
+    committed = run(ReportConfig(eval=str(baseline)), tmp_path / "expected").out / "report.json"
+    edit_table(evaluation, lambda t: t["regions"]["all"]["sianms"]["car"].update(AP=20.0, ATE=0.9))
+    from_folder = run(ReportConfig(eval=str(evaluation), baseline=str(baseline)), tmp_path / "a")
+    from_json = run(ReportConfig(eval=str(evaluation), baseline=str(committed)), tmp_path / "b")
+    for key in ("cells", "reidentification", "config_differences", "fingerprints_changed"):
+        assert from_json.content["comparison"][key] == from_folder.content["comparison"][key]
+    assert from_json.regressions == from_folder.regressions and len(from_json.regressions) == 2
+    again = run(ReportConfig(eval=str(evaluation), baseline=str(from_json.out / "report.json")), tmp_path / "c")
+    assert again.content["comparison"]["cells"][0]["baseline"] == from_json.content["comparison"]["cells"][0]["now"]
+
+
+def test_a_baseline_that_is_no_report_is_refused(evaluation, tmp_path):
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({"schema": "sianms-metrics"}))
+    with pytest.raises(DataFormatError, match="other.json: field 'schema': not a sianms report"):
+        run(ReportConfig(eval=str(evaluation), baseline=str(other)))
+
+
+@pytest.mark.parametrize(("max_drop", "message"), [
+    ("ap=1,speed=2", "--max-drop: unknown key 'speed'; expected ap, ate, ase, aoe, reid"),
+    ("ap", "--max-drop: 'ap' is not KEY=VALUE"),
+    ("ate=-0.1", "--max-drop: ate=-0.1: must be a number >= 0"),
+    ("aoe=fast", "--max-drop: aoe=fast: must be a number >= 0"),
+    ("reid=nan", "--max-drop: reid=nan: must be a number >= 0"),
+    ("ap=1,ap=2", "--max-drop: 'ap' given twice"),
+])
+def test_bad_allowances_name_the_flag_and_key(max_drop, message):
+    with pytest.raises(SianmsError) as caught:
+        ReportConfig(eval="eval", max_drop=max_drop)
+    assert str(caught.value).startswith(message)
+
+
+def test_allowances_start_from_the_defaults():
+    assert parse_allowances(" ap=1 , reid=0.1 ") == {**DEFAULT_ALLOWANCES, "ap": 1.0, "reid": 0.1}
+    assert dict(ReportConfig(eval="e").max_drop) == dict(DEFAULT_ALLOWANCES)
+    with pytest.raises(SianmsError, match="EVAL: must not be empty"):
+        ReportConfig(eval=" ")
+
+
+def test_an_existing_folder_is_replaced_only_when_it_is_a_report_and_asked(evaluation, tmp_path):
+    first = run(ReportConfig(eval=str(evaluation)))
+    before = (first.out / "report.json").read_bytes()
+    with pytest.raises(OutputExistsError, match="pass --overwrite"):
+        run(ReportConfig(eval=str(evaluation)))
+    (first.out / "stale.txt").write_text("from an older report")
+    again = run(ReportConfig(eval=str(evaluation)), overwrite=True)
+    assert (again.out / "report.json").read_bytes() == before and not (again.out / "stale.txt").exists()
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "keep.txt").write_text("mine")
+    with pytest.raises(OutputExistsError, match="not a sianms report"):
+        run(ReportConfig(eval=str(evaluation)), foreign, overwrite=True)
+    assert (foreign / "keep.txt").read_text() == "mine"
+    with pytest.raises(OutputExistsError, match="not a folder"):
+        run(ReportConfig(eval=str(evaluation)), foreign / "keep.txt", overwrite=True)
+    assert [p.name for p in evaluation.iterdir() if p.name.startswith(".")] == []  # no staging folder left
+
+
+@pytest.mark.parametrize(("mask", "file_mode", "folder_mode"), [(0o022, 0o644, 0o755), (0o077, 0o600, 0o700)])
+def test_outputs_follow_the_umask(evaluation, umask, mask, file_mode, folder_mode):
+    umask(mask)
+    report = run(ReportConfig(eval=str(evaluation)))
+    assert os.stat(report.out).st_mode & 0o777 == folder_mode
+    assert {path.name: os.stat(path).st_mode & 0o777 for path in report.out.iterdir()} == dict.fromkeys(
+        ["report.json", "report.md", "report.html"], file_mode)
