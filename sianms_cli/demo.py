@@ -9,7 +9,8 @@ Each stage is the library call its own command makes, into a folder of its own u
     out/cache-val/       `sianms prepare --split mini_val`
     out/siamese/         `sianms train siamese`
     out/fpointnet/       `sianms train fpointnet`
-    out/eval/            `sianms eval` (every method, the NMS sweep), its report in out/eval/report/
+    out/eval/            `sianms eval` (every method, the NMS sweep)
+    out/eval/report/     `sianms report`: report.html, report.md, report.json
 
 A stage recorded as done in ``demo.json`` (and whose folder is still there) is skipped, so a
 killed demo reruns from the stage it was in; that stage resumes as its own command would
@@ -41,7 +42,7 @@ KIND = "sianms-demo"
 VERSION = "v1.0-mini"
 TRAIN_SPLIT, VAL_SPLIT = "mini_train", "mini_val"
 FOLDERS = {"synth": "data", "prepare-train": "cache-train", "prepare-val": "cache-val", "siamese": "siamese",
-           "fpointnet": "fpointnet", "eval": "eval"}
+           "fpointnet": "fpointnet", "eval": "eval", "report": "eval/report"}
 STAGES = tuple(FOLDERS)
 
 
@@ -169,9 +170,15 @@ def _eval(config: DemoConfig, out: Path, progress: Progress, workers: int) -> No
         out / FOLDERS["eval"], progress=progress)
 
 
+def _report(config: DemoConfig, out: Path, progress: Progress, workers: int) -> None:
+    from sianms_cli.reporting.report import ReportConfig, run
+
+    run(ReportConfig(eval=str(out / FOLDERS["eval"])), out / FOLDERS["report"], overwrite=True, progress=progress)
+
+
 RUNNERS = {"synth": _synth, "prepare-train": _prepare(TRAIN_SPLIT, "prepare-train"),
            "prepare-val": _prepare(VAL_SPLIT, "prepare-val"), "siamese": _siamese, "fpointnet": _fpointnet,
-           "eval": _eval}
+           "eval": _eval, "report": _report}
 
 
 # --------------------------------------------------------------------------- the output folder

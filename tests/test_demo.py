@@ -44,7 +44,8 @@ def test_an_interrupted_demo_resumes_at_the_stage_it_was_in(interrupted_then_res
     assert not record["complete"] and events[-1] == ("fpointnet", "start")
     assert sorted(record["stages"]) == sorted(["synth", "prepare-train", "prepare-val", "siamese"])
     assert result.stages_skipped == ["synth", "prepare-train", "prepare-val", "siamese"]
-    assert result.stages_run == ["fpointnet", "eval"]
+    assert result.stages_run == ["fpointnet", "eval", "report"]
+    assert (result.out / "eval" / "report" / "report.html").is_file()
     assert result.manifest["complete"] and result.table["table_class"] == "car"
     assert "rotated-nms@0.1" in result.table["methods"] and "sianms" in result.table["methods"]
     assert json.loads((result.out / "data" / "sianms-synth.json").read_text())["config"]["seed"] == 3
@@ -59,7 +60,8 @@ def test_the_cli_on_a_finished_demo_skips_every_stage_and_prints_the_table(inter
     result = runner.invoke(app, ["demo", "--quick", "--out", out, "--seed", "3"])
     assert result.exit_code == 0, result.output
     assert "| Areas |" in result.stdout and "wall time by stage: synth" in result.stdout
-    assert "[1/6] synth: done earlier" in result.stderr
+    assert f"report: {out}/eval/report/report.html" in result.stdout
+    assert "[1/7] synth: done earlier" in result.stderr
     result = runner.invoke(app, ["demo", "--quick", "--out", out, "--seed", "3", "--json", "--quiet"])
     report = json.loads(result.stdout)
     assert report["config"]["profile"] == "quick" and set(report["stages"]) == set(demo.STAGES)

@@ -61,6 +61,7 @@ def demo_cli(
                               indent=2))
         return
     typer.echo((result.out / "eval" / "table.md").read_text())
+    typer.echo(f"report: {result.out / 'eval' / 'report' / 'report.html'}")
     total = sum(float(state["seconds"]) for state in result.manifest["stages"].values())
     typer.echo("wall time by stage: " + ", ".join(f"{stage} {share:.0%}" for stage, share in shares.items())
                + f" (total {total / 60:.1f} min)")

@@ -106,8 +106,8 @@ class FPointNetV1(nn.Module):
         one_hot = one_hot.to(points.dtype)
         point_feature = self.seg_point(points)
         global_feature = torch.cat([self.seg_global(point_feature).amax(dim=1), one_hot], dim=1)
-        tiled = global_feature[:, None, :].expand(-1, points.shape[1], -1)
-        seg_logits = self.seg_head(torch.cat([point_feature, tiled], dim=2))
+        point_head, dropout_and_logits = self.seg_head[0], self.seg_head[1:]
+        seg_logits = dropout_and_logits(point_head[1:](self._seg_head_first_layer(point_feature, global_feature)))
 
         mask = seg_logits[..., 1] > seg_logits[..., 0]
         xyz = points[..., :3]
@@ -121,6 +121,22 @@ class FPointNetV1(nn.Module):
         box = self.box_head(torch.cat([self.box_point(box_input).amax(dim=1), one_hot], dim=1))
         return {"seg_logits": seg_logits, "mask": mask, "mask_mean": mask_mean, "center_delta": center_delta,
                 "stage1_center": stage1_center, **self.parse_box_output(box, stage1_center)}
+
+    def _seg_head_first_layer(self, point_feature: torch.Tensor, global_feature: torch.Tensor) -> torch.Tensor:
+        """The segmentation head's first layer on [point feature, global feature tiled to every point].
+
+        The original concatenates and applies one linear map per point; the global part of that
+        map is the same for every point of a frustum, so it is applied once per frustum and
+        broadcast: the same function, with 1,024 x 512 fewer multiply-adds per point (the
+        largest layer of the network).
+        """
+        layer = self.seg_head[0][0]
+        local = point_feature.shape[-1]
+        weight = layer.linear.weight
+        per_point = point_feature @ weight[:, :local].T
+        per_frustum = torch.addmm(layer.linear.bias, global_feature, weight[:, local:].T)
+        y = per_point + per_frustum[:, None, :]
+        return torch.relu(layer.norm(y.reshape(-1, y.shape[-1]))).reshape(*y.shape)
 
     def parse_box_output(self, box: torch.Tensor, stage1_center: torch.Tensor) -> dict[str, torch.Tensor]:
         """Split the box net's ``3 + 2 NH + 4 NS`` outputs in the original's order (models.md §1.7)."""

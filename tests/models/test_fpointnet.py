@@ -69,3 +69,20 @@ def test_gather_subsets_without_replacement_when_many():
 def test_bn_momentum_is_settable(model):
     model.set_bn_momentum(0.25)
     assert {m.momentum for m in model.modules() if isinstance(m, torch.nn.BatchNorm1d)} == {0.25}
+
+
+def test_segmentation_head_is_the_originals_concatenation(model):
+    """The head's first layer applied per frustum to the global part gives the original's per-point
+    linear map on [point feature, tiled global feature], in value and in gradient."""
+    generator = torch.Generator().manual_seed(2)
+    xyz = torch.randn(3, 50, 4, generator=generator).requires_grad_(True)
+    one_hot = torch.eye(3)[[0, 1, 2]]
+    point_feature = model.seg_point(xyz)
+    global_feature = torch.cat([model.seg_global(point_feature).amax(dim=1), one_hot.float()], dim=1)
+    tiled = global_feature[:, None, :].expand(-1, xyz.shape[1], -1)
+    original = model.seg_head(torch.cat([point_feature, tiled], dim=2))
+    (original_grad,) = torch.autograd.grad(original.square().sum(), xyz)
+    ours = model(xyz, one_hot)["seg_logits"]
+    (ours_grad,) = torch.autograd.grad(ours.square().sum(), xyz)
+    torch.testing.assert_close(ours, original, rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(ours_grad, original_grad, rtol=1e-4, atol=1e-5)
