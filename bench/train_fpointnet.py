@@ -3,7 +3,10 @@
 Prints frustums per second for training (forward + loss + backward + Adam step) and
 inference (eval mode, no grad) with 1 and 2 torch threads, at the given point counts, and
 the 2-thread / 1-thread ratio measured in the same run (models.md §8 measured 17 frustums/s
-at 1,024 points on 2 threads, 10 on 1; 1.7-1.8x). Batches are random tensors of the real
+at 1,024 points on 2 threads, 10 on 1; 1.7-1.8x). Then, with 2 threads, training against
+the original's formulation of the segmentation head (the global feature tiled to every
+point, then one linear map), which the model replaces by applying the global part once per
+frustum. Batches are random tensors of the real
 shapes: the cache's reading costs well under 1 % of a step (one shard in memory at a time).
 
 Usage: python bench/train_fpointnet.py [--points 1024,512] [--batch 32] [--steps 5] [--bf16]
@@ -33,11 +36,20 @@ def batch(size: int, points: int, generator: torch.Generator) -> tuple[torch.Ten
     return torch.randn(size, points, 4, generator=generator), torch.eye(3)[classes], targets
 
 
-def frustums_per_second(points: int, size: int, steps: int, train: bool, bf16: bool) -> float:
+class ConcatenatedHead(FPointNetV1):
+    """The original's segmentation head: [point feature, tiled global feature] through one per-point map."""
+
+    def _seg_head_first_layer(self, point_feature: torch.Tensor, global_feature: torch.Tensor) -> torch.Tensor:
+        tiled = global_feature[:, None, :].expand(-1, point_feature.shape[1], -1)
+        return self.seg_head[0][0](torch.cat([point_feature, tiled], dim=2))
+
+
+def frustums_per_second(points: int, size: int, steps: int, train: bool, bf16: bool,
+                        network: type[FPointNetV1] = FPointNetV1) -> float:
     """Frustums per second over ``steps`` steps after one warm-up step."""
     torch.manual_seed(0)
     generator = torch.Generator().manual_seed(0)
-    model = FPointNetV1(MEAN_SIZES)
+    model = network(MEAN_SIZES)
     optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
     model.train(train)
     x, one_hot, targets = batch(size, points, generator)
@@ -78,6 +90,13 @@ def main() -> None:
                 rates.append(frustums_per_second(points, args.batch, args.steps, train, args.bf16))
             mode = "train" if train else "inference"
             print(f"{points:6d} | {mode:9s} | {rates[0]:8.1f} | {rates[1]:9.1f} | {rates[1] / rates[0]:.2f}")
+    print("training, 2 threads: segmentation head as the model applies it / as the original concatenates")
+    print("points | per frustum | concatenated | ratio")
+    torch.set_num_threads(2)
+    for points in (int(p) for p in args.points.split(",")):
+        ours = frustums_per_second(points, args.batch, args.steps, True, args.bf16)
+        original = frustums_per_second(points, args.batch, args.steps, True, args.bf16, ConcatenatedHead)
+        print(f"{points:6d} | {ours:11.1f} | {original:12.1f} | {ours / original:.2f}")
 
 
 if __name__ == "__main__":
