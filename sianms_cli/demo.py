@@ -56,6 +56,7 @@ class DemoSettings:
     siamese_epochs: int
     siamese_lr: float  # 1e-3: the paper's 1e-4 needs its 25 epochs (README, `train siamese`)
     fpointnet_epochs: int
+    fpointnet_batch_size: int  # the original's 32; 8 gives a small training set more steps
     num_points: int  # per frustum; the original samples 1,024
     num_object_points: int  # after masking; the original keeps 512
     nms_sweep: str  # IoU thresholds every NMS family is also evaluated at (its best is marked)
@@ -67,8 +68,10 @@ class DemoSettings:
 
 
 DEFAULT = DemoSettings(scenes=10, image_scale=0.25, scene_seconds=20.0, siamese_epochs=12, siamese_lr=1e-3,
-                       fpointnet_epochs=3, num_points=256, num_object_points=128, nms_sweep="0.05,0.1,0.2,0.5")
-QUICK = replace(DEFAULT, scenes=2, siamese_epochs=4, fpointnet_epochs=1, num_points=128, num_object_points=64)
+                       fpointnet_epochs=3, fpointnet_batch_size=32, num_points=256, num_object_points=128,
+                       nms_sweep="0.05,0.1,0.2,0.5")
+QUICK = replace(DEFAULT, scenes=2, siamese_epochs=4, fpointnet_epochs=4, fpointnet_batch_size=8, num_points=128,
+                num_object_points=64)
 PROFILES = {"default": DEFAULT, "quick": QUICK}
 
 
@@ -156,8 +159,8 @@ def _fpointnet(config: DemoConfig, out: Path, progress: Progress, workers: int) 
     settings = config.settings
     run(FPointNetConfig(cache=str(out / FOLDERS["prepare-train"]), val_cache=str(out / FOLDERS["prepare-val"]),
                         num_points=settings.num_points, num_object_points=settings.num_object_points,
-                        min_box_height=settings.min_box_height, epochs=settings.fpointnet_epochs, seed=config.seed,
-                        device="cpu"),
+                        min_box_height=settings.min_box_height, epochs=settings.fpointnet_epochs,
+                        batch_size=settings.fpointnet_batch_size, seed=config.seed, device="cpu"),
         out / FOLDERS["fpointnet"], resume=True, progress=progress)
 
 
