@@ -12,8 +12,8 @@ from sianms_cli.demo import DemoConfig, run
 from sianms_cli.errors import OutputExistsError, SianmsError
 
 runner = CliRunner()
-TINY = replace(demo.QUICK, scene_seconds=1.0, siamese_epochs=1, num_points=64, num_object_points=32,
-               nms_sweep="0.1")
+TINY = replace(demo.QUICK, scene_seconds=1.0, siamese_epochs=1, fpointnet_epochs=1, num_points=64,
+               num_object_points=32, nms_sweep="0.1")
 REAL_FPOINTNET = demo.RUNNERS["fpointnet"]
 
 
