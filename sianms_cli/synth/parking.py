@@ -14,9 +14,15 @@ import numpy as np
 
 from sianms_cli.synth.road import BAY_DEPTH, BAY_START, CarPark, Street
 
-CAR_PARKS_PER_SCENE = 2.0  # Poisson mean of car parks along the ego's drive
+CAR_PARKS_PER_SCENE = 3.0
+"""Poisson mean of car parks along the ego's drive (was 2): Boston Seaport was, in 2018, a
+district of open surface lots between the new blocks, and Singapore's estates park in open lots
+beside the road; our estimate, no published count."""
 BAY_ANGLES = np.radians([90.0, 60.0, 45.0])
-BAY_ANGLE_SHARES = [0.5, 0.25, 0.25]
+BAY_ANGLE_SHARES = [1 / 3, 1 / 3, 1 / 3]
+"""No published mix of bay angles for the nuScenes cities: equal shares (our choice, the least
+informed prior; before, half the bays were perpendicular, which put too many parked cars along
+the ego's axes against nuScenes' spread of orientations, SM Fig. 12)."""
 CAR_PARK_DEPTH = BAY_START + BAY_DEPTH + 1.0
 
 

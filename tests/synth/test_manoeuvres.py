@@ -4,7 +4,7 @@ import pytest
 from sianms_cli.synth.manoeuvres import CLEARANCE, closest_approach
 from sianms_cli.synth.world import SCENE_SECONDS, lateral_offset, plan_scene
 
-VARIED = (0, 1, 2, 3, 15, 36, 38)  # ego lane changes (0, 2), lane changes, a pull-out (2), a pull-in (15)
+VARIED = (0, 1, 3, 4, 5, 36, 38)  # ego lane changes (0, 4), lane changes, a pull-out (5), pull-ins (1, 3)
 
 
 @pytest.fixture(scope="module")
@@ -27,8 +27,8 @@ def _kinds(plan) -> list[str]:
 def test_every_manoeuvre_appears(plans):
     kinds = {kind for plan in plans.values() for kind in _kinds(plan)}
     assert kinds == {"lane", "out", "in"}
-    # The ego moves one lane, on seed 0's 3-lane arterial and on seed 2's 2-lane street.
-    assert abs(plans[0].ego.shift[0]) == pytest.approx(3.5) and abs(plans[2].ego.shift[0]) == pytest.approx(3.5)
+    # The ego moves one lane, on seed 0's 3-lane arterial and on seed 4's 2-lane street.
+    assert abs(plans[0].ego.shift[0]) == pytest.approx(3.5) and abs(plans[4].ego.shift[0]) == pytest.approx(3.5)
     assert plans[0].street.section.lanes_per_direction == 3
 
 
@@ -60,7 +60,7 @@ def test_manoeuvring_tracks_have_consistent_speed_and_heading(plans):
 
 def test_the_ego_heads_where_it_goes_and_ends_in_the_other_lane(plans):
     dt = 1e-3
-    for seed in (0, 2):
+    for seed in (0, 4):
         plan = plans[seed]
         times = np.arange(0.0, SCENE_SECONDS, 0.25)
         xy, yaw = plan.ego.track(plan.route, times)
@@ -80,7 +80,7 @@ def test_manoeuvres_keep_their_clearance_all_scene(plans):
 
 
 def test_pulling_out_cars_are_stopped_until_they_go(plans):
-    plan = plans[2]
+    plan = plans[5]
     agents = plan.agents
     out = np.flatnonzero((agents.shift[:, 0] != 0.0) & np.isfinite(agents.p_range).any(axis=1))
     start = agents.shift[out, 1]

@@ -55,17 +55,31 @@ def test_plan_is_deterministic():
 
 def test_every_place_type_appears_in_the_seeded_scenes(seeded):
     turns = [tuple(i.arms for i in p.street.intersections if not i.through) for p in seeded]
-    assert sum(map(bool, turns)) == 8  # 20 % of 40: nuScenes has 73.9 % go-straight scenarios
+    assert sum(map(bool, turns)) == 18  # 45 %: nuScenes key frames are 73.9 % go-straight (TURN_SHARE)
     assert ((-1,),) in turns and ((-1,), (1,)) in turns  # T and 4-way junctions
     assert any(i.through for p in seeded for i in p.street.intersections)
     angles = {round(float(np.degrees(c.angle))) for p in seeded for c in p.street.car_parks}
     assert angles == {90, 60, 45}
-    assert sum(p.roadworks for p in seeded) == 9  # 22 %, a minority
-    assert sum(p.street.section.median > 0 for p in seeded) == 6  # arterials, 3 lanes each way
+    assert sum(p.roadworks for p in seeded) == 9  # 23 %: those without room between junctions drop out
+    assert sum(_roadworks_sides(p) == 2 for p in seeded) >= 2  # both parking lanes closed
+    assert sum(_parked(p, "vehicle.construction").any() for p in seeded) >= 3
+    assert sum(_parked(p, "vehicle.trailer").any() for p in seeded) >= 10
+    assert sum(p.street.section.median > 0 for p in seeded) == 4  # arterials, 3 lanes each way
     assert sum(_turning_in(p).any() for p in seeded) >= 4 and sum(_turning_off(p).any() for p in seeded) >= 4
     assert sum(_through_crossing(p).any() for p in seeded) >= 4
     assert sum(_driveway(p).any() for p in seeded) >= 4
     assert sum(any(i.side_street for i in p.street.intersections) for p in seeded) >= 4
+
+
+def _roadworks_sides(plan) -> int:
+    """How many sides of the street have barriers (a closed parking lane)."""
+    barriers = plan.agents.category == "movable_object.barrier"
+    return len(set(np.sign(plan.agents.offset[barriers]).tolist()))
+
+
+def _parked(plan, category: str) -> np.ndarray:
+    """(N,) bool: parked road users of ``category``."""
+    return plan.agents.parked & (plan.agents.category == category)
 
 
 def _turning_in(plan) -> np.ndarray:
@@ -265,3 +279,47 @@ def test_class_mix_is_car_dominated(plans):
     pedestrians = np.mean([c.startswith("human.pedestrian") for c in categories])
     assert 0.35 < cars < 0.75
     assert 0.1 < pedestrians < 0.45
+
+
+def test_roadworks_sites_close_the_parking_lane_with_plant_beyond_the_tapers(seeded):
+    """Barriers line the closed parking lane, cones taper off each end, and construction
+    vehicles stand parked against the kerb beyond a taper, clear of every cone."""
+    sites = 0
+    for plan in (p for p in seeded if p.roadworks):
+        agents, section = plan.agents, plan.street.section
+        for side in (-1, 1):
+            mine = np.sign(agents.offset) == side
+            barriers = mine & (agents.category == "movable_object.barrier")
+            if not barriers.any():
+                continue
+            sites += 1
+            assert np.allclose(np.abs(agents.offset[barriers]), section.parking_inner + 0.35)
+            cones = mine & (agents.category == "movable_object.trafficcone") & ~agents.on_line
+            assert cones.sum() >= 2 * 6
+            plant = mine & (agents.category == "vehicle.construction")
+            assert np.all(agents.parked[plant]) and np.all(agents.speed[plant] == 0.0)
+            assert np.all(np.abs(agents.offset[plant]) + agents.size[plant, 0] / 2 <= section.kerb)
+            for row in np.flatnonzero(plant):
+                gap = np.abs(agents.p0[cones] - agents.p0[row]) - agents.size[row, 1] / 2
+                assert gap.min() >= 2.0  # past the taper's last cone
+    assert sites >= 10
+
+
+def test_trailers_and_construction_vehicles_only_stand_parked(seeded):
+    found = set()
+    for plan in seeded:
+        _, _, speed = plan.agents.pose(plan.route, 10.0)
+        names = plan.agents.attributes(speed)
+        for category in ("vehicle.trailer", "vehicle.construction"):
+            rows = plan.agents.category == category
+            found |= {category} if rows.any() else set()
+            assert np.all(plan.agents.parked[rows]) and np.all(plan.agents.speed[rows] == 0.0)
+            assert np.all(names[rows] == "vehicle.parked")
+    assert found == {"vehicle.trailer", "vehicle.construction"}
+
+
+def test_parked_and_ridden_bicycles_appear(seeded):
+    bicycles = [p.agents.category == "vehicle.bicycle" for p in seeded]
+    parked = sum(int(np.sum(b & p.agents.parked)) for b, p in zip(bicycles, seeded))
+    ridden = sum(int(np.sum(b & p.agents.rider)) for b, p in zip(bicycles, seeded))
+    assert parked >= 30 and ridden >= 10
