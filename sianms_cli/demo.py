@@ -68,7 +68,7 @@ class DemoSettings:
 
 
 DEFAULT = DemoSettings(scenes=10, image_scale=0.25, scene_seconds=20.0, siamese_epochs=12, siamese_lr=1e-3,
-                       fpointnet_epochs=3, fpointnet_batch_size=32, num_points=256, num_object_points=128,
+                       fpointnet_epochs=6, fpointnet_batch_size=32, num_points=256, num_object_points=128,
                        nms_sweep="0.05,0.1,0.2,0.5")
 QUICK = replace(DEFAULT, scenes=2, siamese_epochs=4, fpointnet_epochs=4, fpointnet_batch_size=8, num_points=128,
                 num_object_points=64)

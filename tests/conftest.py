@@ -4,6 +4,7 @@ A synthetic dataroot is generated once per distinct configuration and shared by 
 file that asks for it, so it is READ-ONLY: a test that damages a dataset copies it first.
 """
 
+import importlib.util
 import os
 import subprocess
 import uuid
@@ -143,3 +144,14 @@ def eval_inputs(synthetic_dataroot, tmp_path_factory):
                                     min_box_height=0, device="cpu", seed=1), folder / "fpointnet")
     return SimpleNamespace(dataroot=data, split="mini_train", cache=cache, siamese=folder / "siamese",
                            fpointnet=folder / "fpointnet")
+
+
+@pytest.fixture(scope="session")
+def eval_folders():
+    """The hand-written `sianms eval` folders of tests/reporting/test_eval_report.py (``make_eval``,
+    ``edit_table``, ``parse_html``), for the report's CLI, start-up and browser tests."""
+    path = Path(__file__).resolve().parent / "reporting" / "test_eval_report.py"
+    spec = importlib.util.spec_from_file_location("eval_report_folders", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

@@ -2,12 +2,8 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import shutil
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
@@ -19,16 +15,6 @@ from sianms_cli.reporting.report import allowances_text
 runner = CliRunner()
 
 
-def _folders():
-    """The hand-written evaluation folders of tests/reporting/test_eval_report.py."""
-    path = Path(__file__).resolve().parents[1] / "reporting" / "test_eval_report.py"
-    spec = importlib.util.spec_from_file_location("eval_report_folders", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-folders = _folders()
 
 
 def invoke(*arguments: str):
@@ -36,7 +22,12 @@ def invoke(*arguments: str):
 
 
 @pytest.fixture
-def runs(tmp_path):
+def folders(eval_folders):
+    return eval_folders
+
+
+@pytest.fixture
+def runs(tmp_path, folders):
     evaluation = folders.make_eval(tmp_path / "eval")
     return evaluation, shutil.copytree(evaluation, tmp_path / "baseline")
 
@@ -57,7 +48,7 @@ def test_json_is_all_there_is_on_stdout(runs, tmp_path):
     assert result.stdout == (tmp_path / "r" / "report.json").read_text()
 
 
-def test_the_gate_exits_1_listing_exactly_the_regressed_cells(runs):
+def test_the_gate_exits_1_listing_exactly_the_regressed_cells(runs, folders):
     evaluation, baseline = runs
     folders.edit_table(evaluation, lambda t: t["regions"]["overlap"]["sianms"]["car"].update(AP=25.0))
     result = invoke(str(evaluation), "--baseline", str(baseline))
@@ -80,7 +71,7 @@ def test_the_gate_exits_1_listing_exactly_the_regressed_cells(runs):
                                 "split_scenes); pass --force"),
     (["--baseline", "{missing}"], "error: {missing}: file not found"),
 ])
-def test_bad_input_is_one_error_line_and_exit_2(runs, tmp_path, arguments, message):
+def test_bad_input_is_one_error_line_and_exit_2(runs, folders, tmp_path, arguments, message):
     evaluation, _ = runs
     other = folders.make_eval(tmp_path / "other", split_scenes=["scene-0103"])
     names = {"other": str(other), "missing": str(tmp_path / "missing.json")}
@@ -90,7 +81,7 @@ def test_bad_input_is_one_error_line_and_exit_2(runs, tmp_path, arguments, messa
     assert len(result.output.strip().splitlines()) == 1 and "Traceback" not in result.output
 
 
-def test_force_compares_runs_of_another_config(runs, tmp_path):
+def test_force_compares_runs_of_another_config(runs, folders, tmp_path):
     evaluation, _ = runs
     other = folders.make_eval(tmp_path / "other", split_scenes=["scene-0103"])
     result = invoke(str(evaluation), "--baseline", str(other), "--force")
@@ -112,29 +103,3 @@ def test_help_states_the_default_allowances():
     assert DEFAULT_ALLOWANCES_TEXT == allowances_text()
     result = runner.invoke(app, ["report", "-h"])
     assert result.exit_code == 0 and DEFAULT_ALLOWANCES_TEXT in result.output.replace("\n", "").replace(" ", "")
-
-
-PROBE = """
-import json, sys
-from sianms_cli.cli import main
-sys.argv = ["sianms", *json.loads(sys.argv[1])]
-try:
-    main()
-except SystemExit:
-    pass
-sys.stdout = sys.__stdout__
-print(json.dumps(sorted(name for name in ("torch", "numpy", "pyarrow") if name in sys.modules)))
-"""
-
-
-def modules_loaded_by(arguments: list[str]) -> list[str]:
-    done = subprocess.run([sys.executable, "-c", PROBE, json.dumps(arguments)], capture_output=True, text=True,
-                          check=True)
-    return json.loads(done.stdout.strip().splitlines()[-1])
-
-
-def test_help_imports_nothing_heavy_and_the_report_never_imports_torch(tmp_path):
-    assert modules_loaded_by(["report", "-h"]) == []
-    evaluation = folders.make_eval(tmp_path / "eval", details=True)
-    assert "torch" not in modules_loaded_by(["report", str(evaluation), "--quiet"])
-    assert (evaluation / "report" / "pr_curves.png").is_file()

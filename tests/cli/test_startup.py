@@ -27,8 +27,8 @@ def modules_loaded_by(arguments):
 
 
 @pytest.mark.parametrize("arguments", [["--help"], ["-h"], ["prepare", "--help"], ["synth", "-h"], ["metrics", "-h"],
-                                       ["info", "-h"], ["train", "-h"], ["train", "siamese", "-h"],
-                                       ["--version"]])
+                                       ["info", "-h"], ["train", "-h"], ["train", "siamese", "-h"], ["eval", "-h"],
+                                       ["report", "-h"], ["demo", "-h"], ["--version"]])
 def test_help_imports_nothing_heavy(arguments):
     assert modules_loaded_by(arguments) == []
 
@@ -40,3 +40,9 @@ def test_info_and_metrics_do_not_import_torch(synthetic_dataroot, tmp_path):
     results.write_text(json.dumps({"meta": {}, "results": {}}))
     assert "torch" not in modules_loaded_by(["metrics", "--dataroot", dataroot, "--split", "mini_val",
                                              "--results", str(results), "--quiet"])
+
+
+def test_the_report_never_imports_torch(eval_folders, tmp_path):
+    evaluation = eval_folders.make_eval(tmp_path / "eval", details=True)
+    assert "torch" not in modules_loaded_by(["report", str(evaluation), "--quiet"])
+    assert (evaluation / "report" / "pr_curves.png").is_file()

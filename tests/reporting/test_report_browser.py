@@ -6,24 +6,14 @@ Opt-in by marker (``pytest -m browser``) and skipped where no ``chromium`` or
 
 from __future__ import annotations
 
-import importlib.util
 import shutil
 import subprocess
-from pathlib import Path
 
 import pytest
 
 from sianms_cli.reporting.report import ReportConfig, run
 
 pytestmark = pytest.mark.browser
-
-
-def _folders():
-    path = Path(__file__).resolve().parent / "test_eval_report.py"
-    spec = importlib.util.spec_from_file_location("eval_report_folders_browser", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def _chromium() -> str:
@@ -34,9 +24,9 @@ def _chromium() -> str:
     pytest.skip("no chromium or chromium-browser on PATH")
 
 
-def test_chromium_renders_table_i(tmp_path):
+def test_chromium_renders_table_i(tmp_path, eval_folders):
     browser = _chromium()
-    evaluation = _folders().make_eval(tmp_path / "eval", details=True)
+    evaluation = eval_folders.make_eval(tmp_path / "eval", details=True)
     report = run(ReportConfig(eval=str(evaluation)))
     done = subprocess.run([browser, "--headless", "--no-sandbox", "--disable-gpu", "--dump-dom",
                            report.html.resolve().as_uri()], capture_output=True, text=True, timeout=120)
