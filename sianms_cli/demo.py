@@ -44,6 +44,12 @@ TRAIN_SPLIT, VAL_SPLIT = "mini_train", "mini_val"
 FOLDERS = {"synth": "data", "prepare-train": "cache-train", "prepare-val": "cache-val", "siamese": "siamese",
            "fpointnet": "fpointnet", "eval": "eval", "report": "eval/report"}
 STAGES = tuple(FOLDERS)
+STAGE_FIELDS = {  # the resolved config's fields each stage's output depends on, besides the stages before it
+    "synth": ("seed", "scenes", "image_scale", "scene_seconds"), "prepare-train": (), "prepare-val": (),
+    "siamese": ("siamese_epochs", "siamese_lr"),
+    "fpointnet": ("fpointnet_epochs", "fpointnet_batch_size", "num_points", "num_object_points"),
+    "eval": ("nms_sweep",), "report": (),
+}
 
 
 @dataclass(frozen=True)
@@ -192,7 +198,9 @@ def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> dict[s
 
     ``out`` may be absent or empty, or hold an earlier demo (its ``demo.json``). An earlier
     demo of another config is replaced only with ``overwrite``, and only when ``out`` holds
-    nothing but the demo's own files; anything else in ``out`` is never deleted.
+    nothing but the demo's own files; anything else in ``out`` is never deleted. Replacing
+    keeps the stages before the first one the change affects (:data:`STAGE_FIELDS`), so more
+    F-PointNets epochs retrain only F-PointNets, then evaluate and report again.
     """
     if out.exists() and not out.is_dir():
         raise OutputExistsError(f"{out} exists and is not a folder; choose another --out")
@@ -214,12 +222,26 @@ def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> dict[s
         foreign = [entry.name for entry in entries if entry.name not in {MARKER, *FOLDERS.values()}]
         if foreign:
             raise OutputExistsError(f"{out} is not replaced: it holds {foreign[0]}, which the demo did not write")
-        for entry in entries:
-            shutil.rmtree(entry) if entry.is_dir() else entry.unlink()
+        kept = STAGES[:first_changed_stage(stored.get("config", {}), resolved)]
+        for stage in STAGES:
+            if stage not in kept and (out / FOLDERS[stage]).is_dir():
+                shutil.rmtree(out / FOLDERS[stage])
+        record = {"kind": KIND, "config": resolved, "complete": False,
+                  "stages": {stage: state for stage, state in stored.get("stages", {}).items() if stage in kept}}
+        write_json(marker, record)
+        return record
     make_folder(out)
     record = {"kind": KIND, "config": resolved, "complete": False, "stages": {}}
     write_json(marker, record)
     return record
+
+
+def first_changed_stage(before: dict[str, Any], after: dict[str, Any]) -> int:
+    """The position in :data:`STAGES` of the first stage whose fields differ between two resolved configs."""
+    for position, stage in enumerate(STAGES):
+        if any(before.get(name) != after.get(name) for name in STAGE_FIELDS[stage]):
+            return position
+    return len(STAGES)
 
 
 def _is_done(record: dict[str, Any], out: Path, stage: str) -> bool:

@@ -1,6 +1,7 @@
 """`sianms demo`: the stages end to end on a tiny profile, resume after an interrupt, the folder rules."""
 
 import json
+import shutil
 from dataclasses import replace
 
 import pytest
@@ -70,6 +71,18 @@ def test_the_cli_on_a_finished_demo_skips_every_stage_and_prints_the_table(inter
     assert result.exit_code == 2 and result.stderr.startswith("error:") and "differs in: seed" in result.stderr
 
 
+def test_more_epochs_with_overwrite_redo_only_fpointnet_eval_and_report(interrupted_then_resumed, monkeypatch,
+                                                                        tmp_path):
+    monkeypatch.setitem(demo.PROFILES, "quick", TINY)
+    out = tmp_path / "demo"
+    shutil.copytree(interrupted_then_resumed[2].out, out)
+    result = runner.invoke(app, ["demo", "--quick", "--out", str(out), "--seed", "3", "--fpointnet-epochs", "2",
+                                 "--overwrite"])
+    assert result.exit_code == 0, result.output
+    assert "[4/7] siamese: done earlier" in result.stderr and "[5/7] fpointnet: done in" in result.stderr
+    assert len((out / "fpointnet" / "metrics.csv").read_text().splitlines()) == 1 + 2  # header, 2 epochs
+
+
 def test_an_earlier_demo_of_another_config_is_replaced_only_when_asked_and_only_if_all_its_own(tmp_path):
     out = tmp_path / "demo"
     demo.claim_output(out, DemoConfig(seed=1).resolved(), overwrite=False)
@@ -104,3 +117,21 @@ def test_profiles_and_overrides():
                          ({"fpointnet_epochs": 0}, "--fpointnet-epochs")):
         with pytest.raises(SianmsError, match=flag):
             DemoConfig(**kwargs)
+
+
+def test_overwrite_keeps_the_stages_before_the_first_one_the_change_affects(tmp_path):
+    out = tmp_path / "demo"
+    record = demo.claim_output(out, DemoConfig().resolved(), overwrite=False)
+    for stage in demo.STAGES:
+        (out / demo.FOLDERS[stage]).mkdir(parents=True, exist_ok=True)
+        record["stages"][stage] = {"done": True, "seconds": 1.0}
+    (out / "demo.json").write_text(json.dumps(record))
+    more_epochs = DemoConfig(fpointnet_epochs=demo.DEFAULT.fpointnet_epochs + 2).resolved()
+    with pytest.raises(OutputExistsError, match="differs in: fpointnet_epochs"):
+        demo.claim_output(out, more_epochs, overwrite=False)
+    record = demo.claim_output(out, more_epochs, overwrite=True)
+    kept = ["synth", "prepare-train", "prepare-val", "siamese"]
+    assert list(record["stages"]) == kept and record["config"] == more_epochs and not record["complete"]
+    assert sorted(p.name for p in out.iterdir()) == sorted(["demo.json", *(demo.FOLDERS[s] for s in kept)])
+    assert demo.first_changed_stage(more_epochs, DemoConfig(seed=1).resolved()) == 0
+    assert demo.first_changed_stage(more_epochs, more_epochs) == len(demo.STAGES)
