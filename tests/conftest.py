@@ -6,6 +6,7 @@ file that asks for it, so it is READ-ONLY: a test that damages a dataset copies 
 
 import importlib.util
 import os
+import signal
 import subprocess
 import uuid
 from pathlib import Path
@@ -121,10 +122,17 @@ def _alive(pid: int) -> bool:
     return state != "Z"
 
 
+def _default_sigint() -> None:
+    """A shell that starts the tests in the background ignores SIGINT, and children inherit that:
+    pass as ``preexec_fn`` to a command a test interrupts with SIGINT."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.fixture
 def process_tree():
-    """``children(pid)``, ``workers(pid)`` and ``alive(pid)`` from /proc: no worker outlives a run."""
-    return SimpleNamespace(children=_children, workers=_workers, alive=_alive)
+    """``children(pid)``, ``workers(pid)`` and ``alive(pid)`` from /proc: no worker outlives a run;
+    ``default_sigint``, the ``preexec_fn`` of a command a test interrupts."""
+    return SimpleNamespace(children=_children, workers=_workers, alive=_alive, default_sigint=_default_sigint)
 
 
 @pytest.fixture(scope="session")

@@ -97,7 +97,8 @@ def test_sigint_stops_the_workers_and_leaves_an_incomplete_cache(dataroot, tmp_p
     out = tmp_path / "cache"
     command = [sys.executable, "-m", "sianms_cli", "prepare", "--dataroot", str(dataroot), "--split", "mini_train",
                "--out", str(out), "--workers", "2", "--quiet"]
-    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               preexec_fn=process_tree.default_sigint)
     deadline = time.monotonic() + 60
     workers = []
     while len(workers) < 2 and time.monotonic() < deadline and process.poll() is None:

@@ -83,11 +83,6 @@ def _wait_until(condition, timeout: float = 30.0):
     return value
 
 
-def _default_sigint() -> None:
-    """A shell that starts the tests in the background ignores SIGINT, and children inherit that."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="finds the worker processes through /proc")
 @pytest.mark.parametrize("signum, exit_code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)], ids=["SIGTERM", "SIGINT"])
 def test_a_signal_stops_the_workers_and_leaves_nothing(tmp_path, process_tree, signum, exit_code):
@@ -95,7 +90,7 @@ def test_a_signal_stops_the_workers_and_leaves_nothing(tmp_path, process_tree, s
     command = [sys.executable, "-m", "sianms_cli", "synth", "--out", str(out), "--workers", "2", "--scenes", "2",
                "--image-scale", "0.05", "--quiet"]  # 20 s scenes: still sensing when the signal comes
     process = subprocess.Popen(command, cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               preexec_fn=_default_sigint)
+                               preexec_fn=process_tree.default_sigint)
 
     def workers_writing() -> list[Path]:
         assert process.poll() is None, process.communicate()[1]
