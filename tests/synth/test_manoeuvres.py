@@ -42,20 +42,11 @@ def test_lateral_offset_is_a_smoothstep_with_zero_sideways_speed_at_its_ends():
     assert lateral_offset(offset, shift, 4.0)[1][0] == pytest.approx(3.5 * 1.5 / 4.0)  # peak rate 1.5 d / T
 
 
-def test_manoeuvring_tracks_have_consistent_speed_and_heading(plans):
+def test_manoeuvring_tracks_have_consistent_speed_and_heading(plans, track_yaws):
     """Finite differences of positions give the stated speed, and a moving vehicle points
     where it goes (against its path for oncoming traffic, whose path runs backwards)."""
-    dt = 1e-3
     for plan in plans.values():
-        moving = np.flatnonzero(plan.agents.shift[:, 0] != 0.0)
-        for t in np.arange(0.0, SCENE_SECONDS, 0.25):
-            center, yaw, speed = plan.agents.pose(plan.route, t)
-            later, _, _ = plan.agents.pose(plan.route, t + dt)
-            step = later[moving, :2] - center[moving, :2]
-            np.testing.assert_allclose(np.hypot(*step.T) / dt, speed[moving], atol=2e-3)
-            going = speed[moving] > 0.5
-            motion = np.arctan2(step[going, 1], step[going, 0])
-            assert np.all(np.abs(np.angle(np.exp(1j * (motion - yaw[moving][going])))) < 0.01)
+        track_yaws(plan, np.flatnonzero(plan.agents.shift[:, 0] != 0.0))
 
 
 def test_the_ego_heads_where_it_goes_and_ends_in_the_other_lane(plans):

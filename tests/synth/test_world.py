@@ -146,23 +146,13 @@ def test_junction_traffic_keeps_clear_of_everyone_all_scene(seeded):
     assert checked >= 20
 
 
-def test_turning_tracks_have_consistent_velocities(seeded):
+def test_turning_tracks_have_consistent_velocities(seeded, track_yaws):
     """Finite differences of a turning road user's positions give its stated speed, its yaw
     points where it goes, and it ends up square to where it started."""
-    dt = 1e-3
     turning = 0
     for plan in seeded:
         rows = np.flatnonzero(_turning_in(plan) | _turning_off(plan))
-        headings = []
-        for t in np.arange(0.0, SCENE_SECONDS, 0.25):
-            center, yaw, speed = plan.agents.pose(plan.route, t)
-            later, _, _ = plan.agents.pose(plan.route, t + dt)
-            step = later[rows, :2] - center[rows, :2]
-            np.testing.assert_allclose(np.hypot(*step.T) / dt, speed[rows], atol=2e-3)
-            going = speed[rows] > 0.5
-            motion = np.arctan2(step[going, 1], step[going, 0])
-            assert np.all(np.abs(np.angle(np.exp(1j * (motion - yaw[rows][going])))) < 0.01)
-            headings.append(yaw[rows])
+        headings = track_yaws(plan, rows)
         if len(rows):
             swing = np.abs(np.angle(np.exp(1j * (headings[-1] - headings[0]))))
             turning += int(np.sum(np.abs(swing - np.pi / 2) < 0.05))
