@@ -31,7 +31,7 @@ from sianms_cli.data.cache import (
 )
 from sianms_cli.data.schemas import DATASETS
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
-from sianms_cli.io import FolderBusyError, exclusive_lock, make_folder, release_lock, try_lock
+from sianms_cli.io import PARTIAL_SUFFIX, FolderBusyError, exclusive_lock, make_folder, release_lock, try_lock
 from sianms_cli.nuscenes.fingerprint import dataset_fingerprint
 from sianms_cli.nuscenes.tables import CAMERA_CHANNELS
 from sianms_cli.processes import worker_pool
@@ -120,10 +120,15 @@ def check_inputs(db: NuScenesDB, config: PrepareConfig, scenes: list[tuple[str, 
 def refuse_foreign_folder(out: Path) -> None:
     """Refuse, without touching it, a folder that holds anything but a sianms cache.
 
-    The folder lock alone is no foreign content: another run starting into the same new
-    folder holds it before its manifest exists.
+    Another run starting into the same new folder holds the folder lock and writes its
+    manifest (through a temporary file) while this one looks: neither is foreign content, and
+    the entries are listed before the manifest is read, so a manifest renamed into place in
+    between is seen.
     """
-    if out.is_dir() and read_manifest(out) is None and any(e.name != FOLDER_LOCK for e in out.iterdir()):
+    if not out.is_dir():
+        return
+    entries = [e for e in out.iterdir() if e.name != FOLDER_LOCK and not e.name.endswith(PARTIAL_SUFFIX)]
+    if entries and read_manifest(out) is None:
         raise OutputExistsError(
             f"{out} is not empty and is not a sianms cache (no {MANIFEST}); choose another --out")
 
