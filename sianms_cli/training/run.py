@@ -42,6 +42,7 @@ run ends (on a CPU; CUDA kernels may not be deterministic).
 
 from __future__ import annotations
 
+import atexit
 import csv
 import io
 import math
@@ -109,6 +110,9 @@ def init_distributed(device: torch.device) -> tuple[int, int, torch.device]:
         torch.cuda.set_device(device)
     if not dist.is_initialized():
         dist.init_process_group(backend="nccl" if device.type == "cuda" else "gloo")
+        # Left to interpreter shutdown, the group's threads are destroyed while still joinable
+        # and a rank can abort ("terminate called without an active exception").
+        atexit.register(dist.destroy_process_group)
     return dist.get_rank(), dist.get_world_size(), device
 
 
