@@ -29,7 +29,7 @@ _BLACK = np.zeros(3, np.float32)
 class Appearance:
     """The look of one object instance.
 
-    kind: object kind (see `shapes.KINDS`); variant: body style (car: 0 sedan, 1 hatchback,
+    kind: object kind (see `objects.KINDS`); variant: body style (car: 0 sedan, 1 hatchback,
     2 SUV; person: 0 long sleeves, 1 short sleeves; barrier: 0 concrete, 1 plastic);
     base, secondary (3,) linear albedo of the main and the second colour; pattern: index
     into `PATTERNS`; pattern_param (4,): side stripe (height as a fraction of the part,
@@ -301,7 +301,7 @@ def _sample_clutter(kind: str, rng: np.random.Generator) -> Appearance:
 def sample_appearance(kind: str, rng: np.random.Generator, rider: bool | None = None) -> Appearance:
     """Sample one instance's look with realistic colour frequencies.
 
-    kind: one of `shapes.KINDS`; rng: the only source of randomness (same state, same
+    kind: one of `objects.KINDS`; rng: the only source of randomness (same state, same
     result); rider: for "bicycle" and "motorcycle", force a rider on (True) or off (False);
     None samples it with the nuScenes share (41 % with rider). Raises ValueError for an
     unknown kind.

@@ -60,13 +60,8 @@ from scipy.spatial import cKDTree
 
 from sianms_cli.synth.appearance import sample_appearance
 from sianms_cli.synth.road import CROSSING_HALF_WIDTH, PAVEMENT_WIDTH, Route, Street
-from sianms_cli.synth.shapes import (
-    STREET_LIGHT_POLE_INSET,
-    Parts,
-    concat_parts,
-    object_parts,
-    place_parts,
-)
+from sianms_cli.synth.objects import object_parts
+from sianms_cli.synth.shapes import STREET_LIGHT_POLE_INSET, Parts, concat_parts, place_parts
 from sianms_cli.synth.world import SCENE_SECONDS, Agents, Building
 
 KERB_STRIP = 0.88

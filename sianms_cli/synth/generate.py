@@ -70,7 +70,8 @@ from sianms_cli.synth.rig import (
     normalised_rig,
     true_calibration,
 )
-from sianms_cli.synth.shapes import Parts, concat_parts, object_parts, place_parts
+from sianms_cli.synth.objects import object_parts
+from sianms_cli.synth.shapes import Parts, concat_parts, place_parts
 from sianms_cli.synth.world import (
     ANNOTATION_RADIUS,
     KEYFRAME_HZ,

@@ -1,4 +1,6 @@
-"""Solid shapes of the synthetic world as sets of yaw-rotated cuboid parts.
+"""Solid shapes of the synthetic world as sets of yaw-rotated cuboid parts: the parts,
+their materials, the builder every shape uses, and the shapes of static objects and
+street clutter (vehicles.py and people.py hold the road users; objects.py every kind).
 
 Every object is built in its local frame (annotation box centre at the origin, x forward
 along the length l, y left along the width w, z up along the height h) from a few cuboid
@@ -16,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sianms_cli.synth.appearance import BACKPACK, CLUTTER_KINDS, TWO_TONE_ROOF, Appearance
+from sianms_cli.synth.appearance import Appearance
 
 MATERIALS = (
     "paint",        # owner's body colour; carries the owner's pattern (stripe, decal, lower body)
@@ -60,10 +62,6 @@ MATERIAL_ALBEDO = np.array([
     [0.55, 0.04, 0.03],  # barrier stripes (red; the others are white)
     [0.40, 0.36, 0.30],  # facade
 ], dtype=np.float32)
-
-KINDS = ("car", "truck", "bus", "pedestrian", "bicycle", "motorcycle", "barrier",
-         "traffic_cone", "building") + CLUTTER_KINDS
-
 
 @dataclass(frozen=True)
 class Parts:
@@ -146,7 +144,7 @@ def place_parts(parts: Parts, center: np.ndarray, yaw: float, owner: int) -> Par
     )
 
 
-class _Builder:
+class Builder:
     """Collects axis-aligned parts given by their min/max corners, then fits them to a box."""
 
     def __init__(self) -> None:
@@ -181,7 +179,7 @@ class _Builder:
                      np.array(self._material, np.int16), np.array(self._albedo, np.float32))
 
 
-def _ring(b: _Builder, cx: float, cz: float, radius: float, y_half: float, thickness: float,
+def ring(b: Builder, cx: float, cz: float, radius: float, y_half: float, thickness: float,
           material: int, segments: int = 12) -> None:
     """A wheel rim seen from the side, as `segments` small boxes along a circle in x-z."""
     ang = (np.arange(segments) + 0.5) * 2.0 * np.pi / segments
@@ -193,164 +191,7 @@ def _ring(b: _Builder, cx: float, cz: float, radius: float, y_half: float, thick
         b.add_center((x, 0.0, z), (hx, y_half, hz), material)
 
 
-def _car(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
-    # Belt-line height, cabin span along x and cabin width by body style.
-    belt, cab_rear, cab_front, cab_w = {
-        0: (0.56, -0.33, 0.17, 0.84),   # sedan
-        1: (0.55, -0.46, 0.12, 0.85),   # hatchback
-        2: (0.58, -0.46, 0.19, 0.88),   # SUV
-    }[app.variant % 3]
-    z0 = -h / 2
-    clearance = 0.11 * h
-    r = float(np.clip(0.2 * h, 0.28, 0.42))
-    tyre = 0.11
-    body_top = z0 + belt * h
-    roof_colour = app.secondary if app.pattern == TWO_TONE_ROOF else app.base
-    b.add((-l / 2 + 0.02, -w / 2 + 0.015, z0 + clearance), (l / 2 - 0.02, w / 2 - 0.015, body_top),
-          PAINT, app.base)
-    b.add((cab_rear * l, -cab_w * w / 2, body_top), (cab_front * l, cab_w * w / 2, h / 2),
-          GREENHOUSE, roof_colour)
-    for x in (0.31 * l, -0.29 * l):
-        for side in (1.0, -1.0):
-            b.add_center((x, side * (w / 2 - tyre), z0 + r), (r, tyre, r), TYRE)
-    light_z = body_top - 0.13
-    for side in (1.0, -1.0):
-        b.add_center((l / 2 - 0.01, side * (w / 2 - 0.30), light_z), (0.01, 0.17, 0.06), HEADLIGHT)
-        b.add_center((-l / 2 + 0.01, side * (w / 2 - 0.20), light_z), (0.01, 0.14, 0.07), TAILLIGHT)
-    plate_z = z0 + clearance + 0.22
-    b.add_center((l / 2 - 0.01, 0.0, plate_z), (0.01, 0.26, 0.06), PLATE)
-    b.add_center((-l / 2 + 0.01, 0.0, plate_z + 0.12), (0.01, 0.26, 0.06), PLATE)
-    b.add((l / 2 - 0.03, -w / 2 + 0.03, z0 + clearance), (l / 2 - 0.01, w / 2 - 0.03, plate_z - 0.08),
-          TRIM)
-
-
-def _truck(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
-    z0 = -h / 2
-    cab_len = min(2.3, 0.38 * l)
-    cab_h = 0.8 * h
-    r = 0.5
-    front = l / 2
-    b.add((front - cab_len, -w / 2 + 0.02, z0 + 0.45), (front - 0.02, w / 2 - 0.02, z0 + 0.58 * cab_h),
-          PAINT, app.base)
-    b.add((front - cab_len, -w / 2 + 0.06, z0 + 0.58 * cab_h), (front - 0.25, w / 2 - 0.06, z0 + cab_h),
-          GREENHOUSE, app.base)
-    cargo_front = front - cab_len - 0.12
-    b.add((-l / 2, -w / 2, z0 + 0.35 * h), (cargo_front, w / 2, h / 2), PAINT2, app.secondary)
-    b.add((-l / 2 + 0.3, -w / 2 + 0.35, z0 + 0.35), (cargo_front, w / 2 - 0.35, z0 + 0.35 * h), TRIM)
-    for x in (front - 0.55 * cab_len, -l / 2 + 1.2, -l / 2 + 2.3):
-        for side in (1.0, -1.0):
-            b.add_center((x, side * (w / 2 - 0.17), z0 + r), (r, 0.16, r), TYRE)
-    for side in (1.0, -1.0):
-        b.add_center((front - 0.01, side * (w / 2 - 0.3), z0 + 0.75), (0.01, 0.17, 0.08), HEADLIGHT)
-        b.add_center((-l / 2 - 0.01, side * (w / 2 - 0.2), z0 + 0.35 * h + 0.15), (0.01, 0.12, 0.08),
-                     TAILLIGHT)
-    b.add_center((front - 0.01, 0.0, z0 + 0.5), (0.01, 0.26, 0.06), PLATE)
-
-
-def _bus(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
-    z0 = -h / 2
-    r = 0.52
-    band_lo, band_hi = z0 + 0.42 * h, z0 + 0.88 * h
-    b.add((-l / 2 + 0.02, -w / 2, z0 + 0.32), (l / 2 - 0.02, w / 2, band_lo), PAINT, app.base)
-    b.add((-l / 2 + 0.02, -w / 2 + 0.02, band_lo), (l / 2 - 0.02, w / 2 - 0.02, band_hi),
-          GREENHOUSE, app.base)
-    b.add((-l / 2 + 0.02, -w / 2, band_hi), (l / 2 - 0.02, w / 2, h / 2), PAINT, app.base)
-    for x in (l / 2 - 2.4, -l / 2 + 2.8):
-        for side in (1.0, -1.0):
-            b.add_center((x, side * (w / 2 - 0.16), z0 + r), (r, 0.15, r), TYRE)
-    for side in (1.0, -1.0):
-        b.add_center((l / 2 - 0.01, side * (w / 2 - 0.35), z0 + 0.75), (0.01, 0.2, 0.09), HEADLIGHT)
-        b.add_center((-l / 2 + 0.01, side * (w / 2 - 0.2), z0 + 1.0), (0.01, 0.12, 0.2), TAILLIGHT)
-    b.add_center((l / 2 - 0.01, 0.0, z0 + 0.55), (0.01, 0.26, 0.06), PLATE)
-
-
-def _person(b: _Builder, h: float, stride: float, x0: float, z_feet: float, app: Appearance,
-            seated: bool = False) -> None:
-    """A person of height h standing (or seated on a saddle at hip height) at x0, z_feet."""
-    child = h < 1.45
-    head_h = (0.16 if child else 0.13) * h
-    leg_h = 0.47 * h
-    torso_top = h - head_h - 0.03 * h
-    torso_hw = 0.15 if child else 0.19
-    torso_hx = 0.09 if child else 0.11
-    sleeves = app.top if app.variant % 2 == 0 else app.skin
-    if seated:
-        # Thighs forward to the handlebar side, shins down to the pedals.
-        hip = z_feet + leg_h
-        for side, shift in ((1.0, stride), (-1.0, -stride)):
-            b.add((x0, side * 0.1 - 0.07, hip - 0.07), (x0 + 0.35, side * 0.1 + 0.07, hip + 0.07),
-                  CLOTH, app.bottom)
-            b.add((x0 + 0.25 + shift, side * 0.1 - 0.06, z_feet), (x0 + 0.37 + shift, side * 0.1 + 0.06,
-                  hip), CLOTH, app.bottom)
-        arm_x = (x0 + 0.05, x0 + 0.55)
-    else:
-        for side, shift in ((1.0, stride), (-1.0, -stride)):
-            b.add_center((x0 + shift, side * 0.09, z_feet + leg_h / 2), (0.075, 0.075, leg_h / 2),
-                         CLOTH, app.bottom)
-            b.add_center((x0 + shift + 0.04, side * 0.09, z_feet + 0.03), (0.12, 0.06, 0.03), TRIM)
-        arm_x = None
-    b.add((x0 - torso_hx, -torso_hw, z_feet + leg_h), (x0 + torso_hx, torso_hw, z_feet + torso_top),
-          CLOTH, app.top)
-    arm_lo = z_feet + leg_h + 0.04 * h
-    for side, shift in ((1.0, -stride), (-1.0, stride)):
-        y = side * (torso_hw + 0.05)
-        if arm_x is None:
-            b.add_center((x0 + 0.6 * shift, y, (arm_lo + z_feet + torso_top) / 2),
-                         (0.05, 0.05, (z_feet + torso_top - arm_lo) / 2), CLOTH, sleeves)
-        else:
-            b.add((arm_x[0], y - 0.05, z_feet + torso_top - 0.12), (arm_x[1], y + 0.05,
-                  z_feet + torso_top - 0.02), CLOTH, sleeves)
-    head_c = (x0, 0.0, z_feet + h - head_h / 2)
-    b.add_center(head_c, (0.095, 0.08, head_h / 2), SKIN, app.skin)
-    hair_material, hair_colour = (PAINT2, app.secondary) if seated else (HAIR, app.hair)
-    b.add((x0 - 0.11, -0.095, z_feet + h - 0.45 * head_h), (x0 + 0.07, 0.095, z_feet + h),
-          hair_material, hair_colour)
-    if app.pattern == BACKPACK and not seated:
-        b.add((x0 - torso_hx - 0.16, -0.15, z_feet + leg_h + 0.12 * h),
-              (x0 - torso_hx, 0.15, z_feet + torso_top - 0.03), PAINT2, app.secondary)
-
-
-def _pedestrian(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
-    _person(b, h, stride=max(0.0, l / 2 - 0.12), x0=0.0, z_feet=-h / 2, app=app)
-
-
-def _cycle(b: _Builder, w: float, l: float, h: float, app: Appearance, motor: bool) -> None:
-    r = 0.3 if motor else 0.34
-    wheelbase = l - 2 * r
-    z0 = -h / 2
-    axle = z0 + r
-    thick = 0.07 if motor else 0.025
-    _ring(b, wheelbase / 2, axle, r, 0.06 if motor else 0.02, thick, TYRE)
-    _ring(b, -wheelbase / 2, axle, r, 0.06 if motor else 0.02, thick, TYRE)
-    frame_top = axle + (0.55 if motor else 0.45)
-    seat_x = -0.18 * wheelbase
-    bar_x = 0.42 * wheelbase
-    if motor:
-        b.add((-0.3 * wheelbase, -0.16, axle - 0.1), (0.3 * wheelbase, 0.16, axle + 0.3), METAL)
-        b.add((0.0, -0.18, axle + 0.3), (0.35 * wheelbase, 0.18, frame_top), PAINT, app.base)
-        b.add((-0.45 * wheelbase, -0.15, axle + 0.3), (0.0, 0.15, frame_top - 0.08), TRIM)
-        b.add((-wheelbase / 2 - 0.1, -0.1, axle + 0.2), (-0.3 * wheelbase, 0.1, axle + 0.35), PAINT,
-              app.base)
-        b.add_center((wheelbase / 2 + 0.05, 0.0, frame_top), (0.03, 0.09, 0.06), HEADLIGHT)
-        b.add_center((-wheelbase / 2 - 0.11, 0.0, axle + 0.32), (0.01, 0.07, 0.04), TAILLIGHT)
-    else:
-        b.add((seat_x, -0.02, frame_top - 0.04), (bar_x - 0.05, 0.02, frame_top), PAINT, app.base)
-        b.add((seat_x - 0.02, -0.02, axle), (seat_x + 0.02, 0.02, frame_top), PAINT, app.base)
-        b.add((-wheelbase / 2, -0.02, axle - 0.02), (seat_x, 0.02, axle + 0.02), PAINT, app.base)
-        b.add((seat_x, -0.02, axle - 0.02), (bar_x - 0.05, 0.02, axle + 0.04), PAINT, app.base)
-        b.add((seat_x - 0.1, -0.07, frame_top + 0.06), (seat_x + 0.1, 0.07, frame_top + 0.1), TRIM)
-        b.add((seat_x - 0.015, -0.015, frame_top), (seat_x + 0.015, 0.015, frame_top + 0.06), METAL)
-    fork_x = wheelbase / 2 - 0.05
-    b.add((fork_x - 0.02, -0.03, axle), (fork_x + 0.02, 0.03, frame_top + 0.18), METAL)
-    b.add((fork_x - 0.03, -w / 2, frame_top + 0.15), (fork_x + 0.03, w / 2, frame_top + 0.2), TRIM)
-    if app.rider:
-        seat_top = frame_top + (0.0 if motor else 0.1)
-        rider_h = float(np.clip(h - (seat_top - z0) + 0.47 * 1.75, 1.5, 1.9))
-        z_feet = seat_top - 0.47 * rider_h
-        _person(b, rider_h, stride=0.08, x0=seat_x, z_feet=z_feet, app=app, seated=True)
-
-
-def _barrier(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+def _barrier(b: Builder, w: float, l: float, h: float, app: Appearance) -> None:
     z0 = -h / 2
     if app.variant % 2 == 0:
         b.add((-l / 2, -w / 2, z0), (l / 2, w / 2, z0 + 0.3 * h), CONCRETE, app.base)
@@ -361,7 +202,7 @@ def _barrier(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None
         b.add((-0.1 * l, -w / 2, z0 + 0.12), (0.1 * l, w / 2, h / 2), BARRIER_STRIPES, app.base)
 
 
-def _cone(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+def _cone(b: Builder, w: float, l: float, h: float, app: Appearance) -> None:
     z0 = -h / 2
     b.add((-l / 2, -w / 2, z0), (l / 2, w / 2, z0 + 0.05), TRIM)
     tiers = 5
@@ -373,7 +214,7 @@ def _cone(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
               (half * l, half * w, z0 + 0.05 + (h - 0.05) * (i + 1) / tiers), material)
 
 
-def _building(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+def _building(b: Builder, w: float, l: float, h: float, app: Appearance) -> None:
     b.add((-l / 2, -w / 2, -h / 2), (l / 2, w / 2, h / 2 - 0.4), FACADE, app.base)
     b.add((-l / 2, -w / 2, h / 2 - 0.4), (l / 2, w / 2, h / 2), CONCRETE, app.secondary)
 
@@ -397,7 +238,7 @@ width). The pole stands at y = w/2 - inset and its arm reaches towards -y, over 
 every other clutter kind stands at its box centre."""
 
 
-def _tree(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+def _tree(b: Builder, w: float, l: float, h: float, app: Appearance) -> None:
     """Trunk at the box centre; crown in three tiers, the lowest lifted on the -y (road) side."""
     z0 = -h / 2
     trunk = float(np.clip(0.03 * w, 0.1, 0.18))
@@ -409,13 +250,13 @@ def _tree(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
           app.base * np.float32(0.8))
 
 
-def _hedge(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+def _hedge(b: Builder, w: float, l: float, h: float, app: Appearance) -> None:
     b.add((-l / 2, -w / 2, -h / 2), (l / 2, w / 2, h / 2 - 0.15), CLOTH, app.base)
     b.add((-l / 2 + 0.1, -w / 2 + 0.08, h / 2 - 0.15), (l / 2 - 0.1, w / 2 - 0.08, h / 2), CLOTH,
           app.base * np.float32(1.15))
 
 
-def _fence(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+def _fence(b: Builder, w: float, l: float, h: float, app: Appearance) -> None:
     """One panel: a post at each end, two rails and bars about every 0.4 m."""
     z0 = -h / 2
     post = 0.05
@@ -428,7 +269,7 @@ def _fence(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
         b.add_center((x, 0.0, 0.0), (0.012, 0.012, h / 2 - 0.02), METAL, app.base)
 
 
-def _street_light(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+def _street_light(b: Builder, w: float, l: float, h: float, app: Appearance) -> None:
     """Pole at the +y end, an arm at the top towards -y (the road), a luminaire at its end."""
     z0, r = -h / 2, STREET_LIGHT_POLE_INSET - 0.04
     pole_y = w / 2 - STREET_LIGHT_POLE_INSET
@@ -440,14 +281,14 @@ def _street_light(b: _Builder, w: float, l: float, h: float, app: Appearance) ->
     b.add_center((0.0, pole_y, z0 + 0.4), (r + 0.04, r + 0.04, 0.4), METAL, app.base)
 
 
-def _utility_pole(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+def _utility_pole(b: Builder, w: float, l: float, h: float, app: Appearance) -> None:
     """A wooden or concrete pole with a cross-arm along y at the top."""
     r = 0.5 * l
     b.add_center((0.0, 0.0, 0.0), (r, r, h / 2), CONCRETE, app.base)
     b.add((-0.05, -w / 2, h / 2 - 0.9), (0.05, w / 2, h / 2 - 0.78), TRIM)
 
 
-def _sign(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+def _sign(b: Builder, w: float, l: float, h: float, app: Appearance) -> None:
     """A post with a retro-reflective plate facing +x, its bottom 2.1 m up."""
     z0 = -h / 2
     b.add_center((0.0, 0.0, 0.0), (0.03, 0.03, h / 2), METAL)
@@ -455,7 +296,7 @@ def _sign(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
     b.add((-l / 2, -w / 2 + 0.02, z0 + 2.12), (-0.03, w / 2 - 0.02, h / 2 - 0.02), METAL)
 
 
-def _traffic_light(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+def _traffic_light(b: Builder, w: float, l: float, h: float, app: Appearance) -> None:
     """A pedestal signal: a pole at the box centre carrying a head facing +x at its top,
     the head's bottom 2.5 m up (signal housings clear the pavement by at least 2.4 m)."""
     head_lo = h / 2 - 1.0
@@ -467,7 +308,7 @@ def _traffic_light(b: _Builder, w: float, l: float, h: float, app: Appearance) -
     b.add((0.14, -w / 2 + 0.03, h / 2 - 0.04), (l / 2, w / 2 - 0.03, h / 2), TRIM)
 
 
-def _hydrant(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+def _hydrant(b: Builder, w: float, l: float, h: float, app: Appearance) -> None:
     z0 = -h / 2
     b.add((-l / 2, -l / 2, z0), (l / 2, l / 2, z0 + 0.08), PAINT, app.base)
     b.add((-0.35 * l, -0.35 * l, z0 + 0.08), (0.35 * l, 0.35 * l, h / 2 - 0.12), PAINT, app.base)
@@ -475,25 +316,19 @@ def _hydrant(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None
     b.add_center((0.0, 0.0, z0 + 0.55 * h), (0.06, w / 2, 0.06), PAINT2, app.secondary)
 
 
-def _bin(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+def _bin(b: Builder, w: float, l: float, h: float, app: Appearance) -> None:
     b.add((-l / 2 + 0.03, -w / 2 + 0.03, -h / 2), (l / 2 - 0.03, w / 2 - 0.03, h / 2 - 0.08), PAINT,
           app.base)
     b.add((-l / 2, -w / 2, h / 2 - 0.08), (l / 2, w / 2, h / 2), TRIM)
 
 
-def _bollard(b: _Builder, w: float, l: float, h: float, app: Appearance) -> None:
+def _bollard(b: Builder, w: float, l: float, h: float, app: Appearance) -> None:
     b.add((-l / 2, -w / 2, -h / 2), (l / 2, w / 2, h / 2 - 0.2), METAL, app.base)
     b.add((-l / 2, -w / 2, h / 2 - 0.2), (l / 2, w / 2, h / 2 - 0.12), REFLECTOR)
     b.add((-0.8 * l / 2, -0.8 * w / 2, h / 2 - 0.12), (0.8 * l / 2, 0.8 * w / 2, h / 2), METAL, app.base)
 
 
-_BUILDERS = {
-    "car": _car,
-    "truck": _truck,
-    "bus": _bus,
-    "pedestrian": _pedestrian,
-    "bicycle": lambda b, w, l, h, app: _cycle(b, w, l, h, app, motor=False),
-    "motorcycle": lambda b, w, l, h, app: _cycle(b, w, l, h, app, motor=True),
+BUILDERS = {
     "barrier": _barrier,
     "traffic_cone": _cone,
     "building": _building,
@@ -508,23 +343,4 @@ _BUILDERS = {
     "bin": _bin,
     "bollard": _bollard,
 }
-
-
-def object_parts(kind: str, size_wlh, appearance: Appearance) -> Parts:
-    """Parts of one object in its local frame.
-
-    kind: one of `KINDS`; size_wlh (3,) box width, length, height in metres (nuScenes
-    order); appearance: the object's look from `sample_appearance(kind, ...)`. Returns parts
-    with owner 0 and yaw 0 whose union's bounding box is exactly the box
-    [-l/2, l/2] x [-w/2, w/2] x [-h/2, h/2]. Raises ValueError for an unknown kind or a
-    non-positive size.
-    """
-    if kind not in _BUILDERS:
-        raise ValueError(f"unknown object kind {kind!r}; expected one of {KINDS}")
-    size = np.asarray(size_wlh, np.float64).reshape(3)
-    if not np.all(size > 0):
-        raise ValueError(f"object size must be positive, got {size.tolist()}")
-    w, l, h = (float(v) for v in size)
-    b = _Builder()
-    _BUILDERS[kind](b, w, l, h, appearance)
-    return b.fitted(size)
+"""Builders of static objects and street clutter: kind -> f(builder, w, l, h, appearance)."""

@@ -3,7 +3,7 @@ import pytest
 
 from sianms_cli.synth.appearance import (CameraStyle, camera_style, sample_appearance,
                                          stack_appearances)
-from sianms_cli.synth.shapes import KINDS
+from sianms_cli.synth.objects import KINDS
 
 
 @pytest.mark.parametrize("kind", KINDS)

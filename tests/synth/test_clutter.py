@@ -7,7 +7,8 @@ from sianms_cli.synth.camera import render_camera
 from sianms_cli.synth.clutter import KERB_STRIP, place_clutter, road_user_boxes
 from sianms_cli.synth.lidar import scan_lidar
 from sianms_cli.synth.road import CrossSection, Intersection, Route, Street
-from sianms_cli.synth.shapes import Parts, concat_parts, object_parts, place_parts
+from sianms_cli.synth.objects import object_parts
+from sianms_cli.synth.shapes import Parts, concat_parts, place_parts
 from sianms_cli.synth.world import SCENE_SECONDS, plan_scene
 
 SEEDS = range(6)

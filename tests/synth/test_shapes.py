@@ -3,7 +3,8 @@ import pytest
 
 from sianms_cli.synth import shapes
 from sianms_cli.synth.appearance import Appearance, sample_appearance
-from sianms_cli.synth.shapes import KINDS, Parts, concat_parts, object_parts, place_parts
+from sianms_cli.synth.objects import KINDS, object_parts
+from sianms_cli.synth.shapes import Parts, concat_parts, place_parts
 
 SIZES = {"car": (1.95, 4.62, 1.73), "truck": (2.51, 6.93, 2.84), "bus": (2.93, 11.23, 3.47),
          "pedestrian": (0.67, 0.73, 1.77), "bicycle": (0.6, 1.7, 1.28), "motorcycle": (0.77, 2.11, 1.47),
@@ -102,3 +103,9 @@ def test_invalid_input_is_rejected():
         object_parts("car", (1.9, 0.0, 1.5), Appearance("car"))
     with pytest.raises(ValueError, match="rows"):
         Parts([[0.0, 0, 0]], [[1.0, 1, 1]], [0.0, 1.0], [0], [0])
+
+
+def test_every_kind_has_one_builder():
+    from sianms_cli.synth import objects
+    assert set(KINDS) == set(objects._BUILDERS)
+    assert len(KINDS) == len(set(KINDS))
