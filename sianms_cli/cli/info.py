@@ -17,22 +17,40 @@ def info_cli(
     version: str = typer.Option("v1.0-mini", help="Version folder inside the dataroot."),
     max_sweeps: int = typer.Option(200, help="LiDAR key-frame files read for the points-per-sweep figure (0: none)."),
     out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here (atomically)."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing --out file."),
+    contact_sheet: Optional[Path] = typer.Option(
+        None, "--contact-sheet", help="Also draw the six cameras of one day, one night and one rain key frame "
+        "into this .png or .jpg (rows the dataset lacks are left out)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing --out or --contact-sheet file."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
     as_json: bool = typer.Option(False, "--json", help="Print the figures as JSON."),
 ) -> None:
     """Describe a nuScenes-format dataset and hold each figure against real nuScenes.
 
-    Scenes, samples, annotations per category, objects per keyframe (by class), LiDAR points
-    per annotation and per sweep, visibility and attribute shares; how often one object is
-    imaged twice: image boxes per 3-D box (the devkit's 2-D export rule) and the share imaged
+    Scenes (and how many are at night, in rain, and both, read from the words "night" and
+    "rain" in their descriptions, as on real nuScenes), samples, annotations per category,
+    objects per keyframe (by class), LiDAR points per annotation and per sweep, visibility and
+    attribute shares; how often one object is imaged twice: image boxes per 3-D box (the devkit's 2-D export rule) and the share imaged
     by >= 2 cameras by class and by distance, the cars' camera-overlap share, their azimuth
     and heading-to-axis histograms; and how much of the ego's driving goes straight. Each
     figure prints beside its nuScenes value and source.
     """
+    from sianms_cli.io import check_writable_output
+    from sianms_cli.reporting.contact_sheet import write_contact_sheet
     from sianms_cli.reporting.dataset_summary import InfoConfig, format_summary, run
 
+    if contact_sheet is not None:
+        check_writable_output(contact_sheet, overwrite=overwrite)
     config = InfoConfig(dataroot=str(dataroot), version=version, max_sweeps=max_sweeps)
     with ProgressBar(quiet) as bar:
         summary = run(config, out, overwrite=overwrite, progress=bar)
-    typer.echo(json.dumps(summary, indent=2) if as_json else format_summary(summary))
+    if contact_sheet is not None:
+        rows = write_contact_sheet(dataroot, version, contact_sheet, overwrite=overwrite)
+        summary["contact_sheet"] = {"path": str(contact_sheet),
+                                    "rows": [{"condition": r.condition, "scene": r.scene_name} for r in rows]}
+    if as_json:
+        typer.echo(json.dumps(summary, indent=2))
+        return
+    typer.echo(format_summary(summary))
+    if contact_sheet is not None:
+        drawn = ", ".join(f"{row['condition']} {row['scene']}" for row in summary["contact_sheet"]["rows"])
+        typer.echo(f"contact sheet: {contact_sheet} ({drawn})")

@@ -12,6 +12,7 @@ turns (:mod:`sianms_cli.reporting.ego_motion`).
 
 from __future__ import annotations
 
+import re
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,6 +39,11 @@ AZIMUTH_BIN_DEGREES = 15.0
 FORE_AFT_DEGREES = 15.0  # half-width of the fore-aft sectors (ahead and behind)
 HEADING_BIN_DEGREES = 5.0
 VISIBILITY_LEVELS = {"1": "v0-40", "2": "v40-60", "3": "v60-80", "4": "v80-100"}
+# Scene conditions as nuScenes descriptions write them ("Night, big street, ...", "Rain, peds,
+# parking lot", "Night, rain, ..."): a word that starts with "night" or "rain", any case, so
+# "rainy" counts and "train" or "drain" do not.
+NIGHT_WORD = re.compile(r"\bnight", re.IGNORECASE)
+RAIN_WORD = re.compile(r"\brain", re.IGNORECASE)
 
 
 @dataclass(frozen=True)
@@ -88,6 +94,7 @@ def summarize(db: NuScenesDB, max_sweeps: int = 200, progress: Progress = SILENT
         "dataroot": str(db.dataroot),
         "version": db.version,
         "scenes": len(db.table("scene")),
+        "scene_conditions": condition_counts(db.table("scene").column("description").tolist()),
         "samples": n_samples,
         "sample_data": len(db.table("sample_data")),
         "instances": len(db.table("instance")),
@@ -121,6 +128,24 @@ def summarize(db: NuScenesDB, max_sweeps: int = 200, progress: Progress = SILENT
         "car_heading_to_axis_within_50m": heading_to_axis_figures(heading_ego),
         "ego_motion": ego_motion(db),
         "nuscenes_reference": reference_json(),
+    }
+
+
+def night_and_rain(descriptions) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) bool night and (N,) bool rain of N scene descriptions (see :data:`NIGHT_WORD`)."""
+    night = np.array([bool(NIGHT_WORD.search(text)) for text in descriptions], bool)
+    rain = np.array([bool(RAIN_WORD.search(text)) for text in descriptions], bool)
+    return night, rain
+
+
+def condition_counts(descriptions: list[str]) -> dict:
+    """How many scenes are at night, in rain, and both, read from their descriptions (see
+    :data:`NIGHT_WORD`), with their shares of all scenes (None without scenes)."""
+    night, rain = night_and_rain(descriptions)
+    both = night & rain
+    return {
+        "night": int(night.sum()), "rain": int(rain.sum()), "night_and_rain": int(both.sum()),
+        "share_night": _share(night), "share_rain": _share(rain), "share_night_and_rain": _share(both),
     }
 
 
@@ -293,6 +318,7 @@ def format_summary(summary: dict) -> str:
         f"{summary['dataroot']}  {summary['version']}",
         f"  scenes {summary['scenes']}, samples {summary['samples']}, sample_data {summary['sample_data']}, "
         f"instances {summary['instances']}, annotations {summary['annotations']}",
+        *_condition_lines(summary["scene_conditions"], summary["scenes"]),
         "  annotations per category:",
     ]
     n_samples = max(summary["samples"], 1)
@@ -336,6 +362,17 @@ def format_summary(summary: dict) -> str:
     lines += _angle_lines(summary["car_azimuth_within_50m"], summary["car_heading_to_axis_within_50m"])
     lines += _ego_lines(summary["ego_motion"])
     return "\n".join(lines)
+
+
+def _condition_lines(conditions: dict, scenes: int) -> list[str]:
+    """Night and rain scenes, as their descriptions say."""
+    return [
+        f"  scenes at night (description): {conditions['night']} of {scenes}, {_percent(conditions['share_night'])}"
+        + _versus("scene_share_night"),
+        f"  scenes in rain (description): {conditions['rain']} of {scenes}, {_percent(conditions['share_rain'])}"
+        + _versus("scene_share_rain"),
+        f"  scenes at night in rain: {conditions['night_and_rain']}, {_percent(conditions['share_night_and_rain'])}",
+    ]
 
 
 def _image_box_lines(image: dict) -> list[str]:

@@ -61,6 +61,12 @@ REFERENCE: dict[str, Reference] = {
         0.739, "73.9 %", "Li et al., arXiv 2312.03031, go-straight share of the planning scenarios"),
     "share_scenes_not_straight": Reference(
         1 - 0.739, "~26 %", "derived from Li et al., arXiv 2312.03031"),
+    "scene_share_night": Reference(
+        0.116, "11.6 %", "v1.0-trainval scene descriptions saying night, ~99 of 850; as stated in issue 11, "
+        "not re-counted here"),
+    "scene_share_rain": Reference(
+        0.194, "19.4 %", "v1.0-trainval scene descriptions saying rain, ~165 of 850; as stated in issue 11, "
+        "not re-counted here"),
 }
 
 

@@ -16,7 +16,24 @@ import numpy as np
 PATTERNS = ("solid", "two_tone_roof", "side_stripe", "lower_body", "decal", "backpack")
 SOLID, TWO_TONE_ROOF, SIDE_STRIPE, LOWER_BODY, DECAL, BACKPACK = range(len(PATTERNS))
 
-CAR_VARIANTS = ("sedan", "hatchback", "suv")
+CAR_VARIANTS = ("sedan", "hatchback", "estate", "suv", "pickup", "van", "minivan", "coupe")
+"""Car models, in the order of `Appearance.variant` (vehicles.CAR_MODELS holds their shapes)."""
+TRUCK_VARIANTS = ("box", "flatbed", "tipper")
+TRAILER_VARIANTS = ("box", "flatbed", "tanker")
+CONSTRUCTION_VARIANTS = ("excavator", "loader", "roller")
+REAR_EXTRAS = ("none", "spoiler", "tow_bar", "spare_wheel")
+"""What a car carries on its rear (`VehicleDetails.rear_extra`)."""
+
+HAIR_STYLES = ("short", "long", "ponytail", "bald")
+SHORT_HAIR, LONG_HAIR, PONYTAIL, BALD = range(len(HAIR_STYLES))
+HEADWEAR = ("none", "cap", "beanie", "hard_hat", "open_helmet", "full_face_helmet")
+NO_HEADWEAR, CAP, BEANIE, HARD_HAT, OPEN_HELMET, FULL_FACE_HELMET = range(len(HEADWEAR))
+LEGWEAR = ("trousers", "shorts", "skirt", "dress")
+TROUSERS, SHORTS, SKIRT, DRESS = range(len(LEGWEAR))
+TOP_STYLES = ("plain", "stripes", "logo_band", "open_jacket", "hi_vis_vest")
+PLAIN_TOP, STRIPES, LOGO_BAND, OPEN_JACKET, HI_VIS_VEST = range(len(TOP_STYLES))
+BAGS = ("none", "backpack", "shoulder_bag_left", "shoulder_bag_right", "handbag", "shopping_bag")
+NO_BAG, BACKPACK_BAG, SHOULDER_BAG_LEFT, SHOULDER_BAG_RIGHT, HANDBAG, SHOPPING_BAG = range(len(BAGS))
 
 CLUTTER_KINDS = ("tree", "hedge", "fence", "street_light", "utility_pole", "sign", "traffic_light",
                  "hydrant", "bin", "bollard")
@@ -26,18 +43,48 @@ _BLACK = np.zeros(3, np.float32)
 
 
 @dataclass(frozen=True)
+class VehicleDetails:
+    """Per-instance details of a motor vehicle that differ by side and by end.
+
+    jitter (8,) float32 standard-normal draws clipped to [-2, 2] that move the model's
+    proportions (vehicles.py scales each: belt line, cabin rear, cabin front, cabin width,
+    bonnet height, wheel radius, headlight size, rear-light size; zeros give the nominal
+    model); rim (3,) linear albedo of the wheel hubs, rim_size their size as a fraction of
+    the tyre radius; chrome_grille: bright metal instead of black plastic; roof_rails;
+    rear_extra: index into `REAR_EXTRAS`; decal_side: +1 a decal or stripe on the left
+    (+y) side only, -1 on the right (-y) side only, 0 none; decal (4,): its x centre and
+    half length as fractions of the length, its z centre and half height as fractions of
+    the body side's height; decal_colour (3,); dirt in [0, 1]: how far road dirt darkens
+    the sills.
+    """
+
+    jitter: np.ndarray = field(default_factory=lambda: np.zeros(8, np.float32))
+    rim: np.ndarray = field(default_factory=lambda: np.full(3, 0.35, np.float32))
+    rim_size: float = 0.7
+    chrome_grille: bool = False
+    roof_rails: bool = False
+    rear_extra: int = 0
+    decal_side: int = 0
+    decal: np.ndarray = field(default_factory=lambda: np.zeros(4, np.float32))
+    decal_colour: np.ndarray = field(default_factory=lambda: np.full(3, 0.3, np.float32))
+    dirt: float = 0.0
+
+
+@dataclass(frozen=True)
 class Appearance:
     """The look of one object instance.
 
-    kind: object kind (see `objects.KINDS`); variant: body style (car: 0 sedan, 1 hatchback,
-    2 SUV; person: 0 long sleeves, 1 short sleeves; barrier: 0 concrete, 1 plastic);
+    kind: object kind (see `objects.KINDS`); variant: body style (car: model index into
+    `CAR_VARIANTS`; truck, trailer, construction: index into `TRUCK_VARIANTS`,
+    `TRAILER_VARIANTS`, `CONSTRUCTION_VARIANTS`; person: 0 long sleeves, 1 short sleeves;
+    barrier: 0 concrete, 1 plastic);
     base, secondary (3,) linear albedo of the main and the second colour; pattern: index
     into `PATTERNS`; pattern_param (4,): side stripe (height as a fraction of the part,
     half width m, -, -), lower body (split height fraction, -, -, -), decal (x and z centre
     as fractions in [-0.5, 0.5] of the part, half width m, half height m); glass (3,)
     albedo of the glazing; gloss in [0, 1] clear-coat strength; skin, hair, top, bottom
     (3,) for people and riders (helmet in `secondary`); rider: a bicycle or motorcycle
-    carries a rider.
+    carries a rider; vehicle: per-instance details of motor vehicles (`VehicleDetails`).
     """
 
     kind: str
@@ -53,6 +100,18 @@ class Appearance:
     top: np.ndarray = field(default_factory=lambda: _BLACK.copy())
     bottom: np.ndarray = field(default_factory=lambda: _BLACK.copy())
     rider: bool = False
+    vehicle: VehicleDetails = field(default_factory=lambda: VehicleDetails())
+    # People and riders (people.py draws them): styles index the tuples below; accent (3,)
+    # is the second clothing colour (open jacket, stripes, logo band, bag), shoes (3,) the
+    # footwear; gait_phase in [0, 1) the instant of the walking or pedalling cycle.
+    hair_style: int = 0
+    headwear: int = 0
+    legwear: int = 0
+    top_style: int = 0
+    bag: int = 0
+    accent: np.ndarray = field(default_factory=lambda: _BLACK.copy())
+    shoes: np.ndarray = field(default_factory=lambda: _BLACK.copy())
+    gait_phase: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -139,6 +198,10 @@ _BOTTOM = _palette({
     "jeans": (35, (50, 70, 110)), "black": (35, (25, 25, 28)), "grey": (10, (100, 100, 105)),
     "beige": (10, (180, 160, 125)), "brown": (5, (95, 70, 50)), "white": (5, (220, 220, 215)),
 })
+_SHOES = _palette({
+    "black": (45, (25, 25, 27)), "white": (25, (225, 225, 220)), "brown": (15, (85, 60, 40)),
+    "grey": (10, (110, 110, 115)), "blue": (5, (40, 60, 120)),
+})
 _HAIR = _palette({
     "black": (50, (22, 18, 16)), "dark_brown": (25, (55, 38, 26)), "brown": (10, (100, 70, 45)),
     "blond": (8, (190, 160, 110)), "grey": (7, (150, 148, 145)),
@@ -187,7 +250,24 @@ def _skin(rng: np.random.Generator) -> np.ndarray:
 
 def _person_colours(rng: np.random.Generator) -> dict:
     return {"skin": _skin(rng), "hair": _pick(_HAIR, rng), "top": _pick(_TOP, rng),
-            "bottom": _pick(_BOTTOM, rng)}
+            "bottom": _pick(_BOTTOM, rng), "accent": _pick(_TOP, rng), "shoes": _pick(_SHOES, rng)}
+
+
+# Shares of clothing and hair styles: our own estimate of mixed-season street wear in the
+# nuScenes cities (Boston, Singapore); no published statistics were found.
+_SHORT_SLEEVES = 0.45
+_LEGWEAR_SHARE = (0.64, 0.16, 0.12, 0.08)       # trousers, shorts, skirt, dress
+_TOP_STYLE_SHARE = (0.55, 0.12, 0.08, 0.25)     # plain, stripes, logo band, open jacket
+_HAIR_STYLE_SHARE = (0.50, 0.28, 0.12, 0.10)    # short, long, ponytail, bald
+_HEADWEAR_SHARE = (0.84, 0.10, 0.06)            # none, cap, beanie
+_BAG_SHARE = (0.40, 0.25, 0.09, 0.09, 0.08, 0.09)  # none, backpack, shoulder L/R, handbag, shopping
+# Helmets: our own estimate of urban cycling (about half of cyclists wear one); motorcycle
+# helmets are compulsory in both cities, full-face ones the majority (our estimate).
+_BICYCLE_HELMET = 0.5
+_FULL_FACE = 0.7
+_HI_VIS = _srgb_to_linear((205, 230, 40)).astype(np.float32)
+_HARD_HAT = _palette({"white": (40, (235, 235, 230)), "yellow": (35, (235, 200, 30)),
+                      "orange": (25, (235, 110, 25))})
 
 
 def _glass(rng: np.random.Generator) -> np.ndarray:
@@ -221,23 +301,149 @@ def _car_pattern(rng: np.random.Generator, base: np.ndarray) -> tuple[int, np.nd
     return pattern, secondary, param.astype(np.float32)
 
 
-def _sample_car(rng: np.random.Generator) -> Appearance:
+# Car model mix, in the order of CAR_VARIANTS: our own estimate for nuScenes's streets,
+# Boston (55 % of scenes) and Singapore (45 %). US sales are about half SUVs and crossovers,
+# a fifth sedans and other cars and a few per cent minivans and vans (Kelley Blue Book
+# segment reports 2019-2022); Singapore registers mostly sedans and SUVs, more MPVs and
+# hardly any pickups (LTA new registrations by vehicle make and type). Streets hold older
+# cars than today's sales, so sedans keep a larger share, and nuScenes labels pick-ups
+# vehicle.truck (annotator instructions), so few of them are "vehicle.car".
+_CAR_MODEL_SHARE = np.array([0.30, 0.08, 0.03, 0.40, 0.03, 0.04, 0.08, 0.04])
+# Typical length and height (m) of each model, from the makers' figures of the examples in
+# vehicles.CAR_MODELS (Camry, Golf, V60, RAV4, F-150, Transit Custom, Odyssey, 2 Series),
+# and the spread of one body type across makes (our own estimate). A car whose box is drawn
+# 1.40 m tall is then a sedan or a coupe, not a van squashed into it.
+_CAR_MODEL_LENGTH_HEIGHT = np.array([[4.88, 1.45], [4.26, 1.46], [4.76, 1.43], [4.60, 1.69],
+                                     [5.89, 1.96], [4.97, 1.98], [5.16, 1.74], [4.54, 1.39]])
+_CAR_MODEL_SPREAD = np.array([0.35, 0.10])
+# Per model (CAR_VARIANTS order): share with roof rails, and shares of the rear extras
+# (none, spoiler, tow bar, spare wheel on the tailgate). Our own estimate of city streets:
+# rails come on most estates and many SUVs, tow bars on pickups and US SUVs, rear spares
+# on older off-roaders only.
+_ROOF_RAILS = np.array([0.02, 0.10, 0.60, 0.45, 0.0, 0.25, 0.35, 0.0])
+_REAR_EXTRA_SHARE = np.array([
+    [0.92, 0.06, 0.02, 0.00],  # sedan
+    [0.72, 0.25, 0.03, 0.00],  # hatchback
+    [0.90, 0.02, 0.08, 0.00],  # estate
+    [0.78, 0.02, 0.14, 0.06],  # SUV
+    [0.65, 0.00, 0.35, 0.00],  # pickup
+    [0.85, 0.00, 0.15, 0.00],  # van
+    [0.93, 0.02, 0.05, 0.00],  # minivan
+    [0.55, 0.45, 0.00, 0.00],  # coupe
+])
+# Wheel hubs: silver alloys, dark alloys, grey steel-wheel covers, white or gold alloys
+# (our own estimate of the street mix); sRGB tones of typical finishes.
+_RIM = _palette({"silver": (60, (175, 178, 182)), "dark": (20, (40, 40, 44)),
+                 "steel": (15, (110, 112, 115)), "white": (3, (225, 225, 222)),
+                 "gold": (2, (170, 140, 80))})
+# One-sided marks for `_ONE_SIDED_MARK` of cars (a sticker, a stripe, a repaired panel in
+# primer or another colour, a scrape): our own estimate, no published figure.
+_ONE_SIDED_MARK = 0.12
+_MARK = _palette({"primer_grey": (30, (125, 125, 120)), "black": (25, (25, 25, 28)),
+                  "white": (20, (235, 235, 232)), "red": (10, (170, 30, 30)),
+                  "blue": (10, (35, 75, 160)), "yellow": (5, (225, 190, 40))})
+# Share of cars with visibly dirty sills (our own estimate; more after rain and in winter).
+_DIRTY = 0.25
+
+
+def _vehicle_details(model: int, rng: np.random.Generator) -> VehicleDetails:
+    """Details of one car of model index `model` (see `VehicleDetails`)."""
+    jitter = np.clip(rng.normal(0.0, 1.0, 8), -2.0, 2.0).astype(np.float32)
+    side = 0
+    if rng.uniform() < _ONE_SIDED_MARK:
+        side = 1 if rng.uniform() < 0.5 else -1
+    # A mark is a long thin stripe or a shorter panel-sized patch.
+    stripe = rng.uniform() < 0.5
+    decal = np.array([rng.uniform(-0.25, 0.25), rng.uniform(0.2, 0.35) if stripe else rng.uniform(0.06, 0.14),
+                      rng.uniform(0.35, 0.75), rng.uniform(0.04, 0.08) if stripe else rng.uniform(0.15, 0.3)])
+    dirt = float(rng.uniform(0.3, 0.8)) if rng.uniform() < _DIRTY else 0.0
+    return VehicleDetails(
+        jitter=jitter, rim=_pick(_RIM, rng, 0.1, 0.02), rim_size=float(rng.uniform(0.55, 0.9)),
+        chrome_grille=bool(rng.uniform() < 0.3), roof_rails=bool(rng.uniform() < _ROOF_RAILS[model]),
+        rear_extra=int(rng.choice(4, p=_REAR_EXTRA_SHARE[model])), decal_side=side,
+        decal=decal.astype(np.float32), decal_colour=_pick(_MARK, rng), dirt=dirt)
+
+
+def _car_model_share(size_wlh) -> np.ndarray:
+    """(8,) probability of each car model: the street mix, or, given the box size (3,) w, l,
+    h, the mix weighted by how likely each model is to have that length and height."""
+    if size_wlh is None:
+        return _CAR_MODEL_SHARE
+    length_height = np.asarray(size_wlh, np.float64)[1:]
+    z = (length_height - _CAR_MODEL_LENGTH_HEIGHT) / _CAR_MODEL_SPREAD
+    log_weight = np.log(_CAR_MODEL_SHARE) - 0.5 * (z * z).sum(axis=1)
+    weight = np.exp(log_weight - log_weight.max())
+    return weight / weight.sum()
+
+
+def _sample_car(rng: np.random.Generator, size_wlh=None) -> Appearance:
     idx, base = _pick_indexed(_CAR, rng)
     name = _CAR_NAMES[idx]
-    variant = int(rng.choice(3, p=[0.4, 0.3, 0.3]))
+    variant = int(rng.choice(len(CAR_VARIANTS), p=_car_model_share(size_wlh)))
     pattern, secondary, param = _car_pattern(rng, base)
     gloss = rng.uniform(0.6, 0.9) if name in _METALLIC else rng.uniform(0.3, 0.6)
-    return Appearance("car", variant, base, secondary, pattern, param, _glass(rng), float(gloss))
+    return Appearance("car", variant, base, secondary, pattern, param, _glass(rng), float(gloss),
+                      vehicle=_vehicle_details(variant, rng))
+
+
+# Heavy-vehicle variants (TRUCK_VARIANTS, TRAILER_VARIANTS, CONSTRUCTION_VARIANTS orders):
+# our own estimate of city streets and nuScenes's construction sites: box bodies for
+# deliveries, tippers at sites, flatbeds; box (van) trailers dominate US freight, then
+# flatbeds and tankers; excavators are the most common plant at street works.
+_TRUCK_SHARE = np.array([0.60, 0.15, 0.25])
+_TRAILER_SHARE = np.array([0.60, 0.25, 0.15])
+_CONSTRUCTION_SHARE = np.array([0.45, 0.30, 0.25])
+# Trailers: white box vans and steel or aluminium tanks dominate (our own estimate).
+_TRAILER = _palette({
+    "white": (55, (232, 232, 228)), "silver": (20, (175, 178, 180)), "grey": (8, (110, 112, 116)),
+    "blue": (6, (35, 65, 140)), "red": (6, (160, 30, 28)), "black": (5, (28, 28, 30)),
+})
+# Construction plant: manufacturers' liveries (yellow: Caterpillar, Komatsu, Volvo, JCB;
+# orange: Hitachi, Doosan; others rarer); shares are our own estimate.
+_CONSTRUCTION = _palette({
+    "yellow": (55, (235, 180, 20)), "orange": (20, (230, 110, 20)), "white": (10, (230, 230, 225)),
+    "red": (5, (180, 35, 30)), "green": (5, (60, 120, 60)), "blue": (5, (40, 80, 160)),
+})
+
+
+def _heavy_details(rng: np.random.Generator) -> VehicleDetails:
+    """Details of a truck, trailer or construction vehicle: proportions, hubs and dirt."""
+    jitter = np.clip(rng.normal(0.0, 1.0, 8), -2.0, 2.0).astype(np.float32)
+    dirt = float(rng.uniform(0.2, 0.8)) if rng.uniform() < 0.5 else 0.0
+    return VehicleDetails(jitter=jitter, rim=_pick(_RIM, rng, 0.1, 0.02), rim_size=float(rng.uniform(0.5, 0.75)),
+                          chrome_grille=bool(rng.uniform() < 0.3), dirt=dirt)
 
 
 def _sample_truck(rng: np.random.Generator) -> Appearance:
     base = _pick(_TRUCK, rng)
     secondary = _pick(_TRUCK, rng)
+    variant = int(rng.choice(len(TRUCK_VARIANTS), p=_TRUCK_SHARE))
     pattern = DECAL if rng.uniform() < 0.4 else SOLID
     param = np.array([rng.uniform(-0.3, 0.3), rng.uniform(-0.1, 0.2), rng.uniform(0.5, 1.5),
                       rng.uniform(0.3, 0.6)], np.float32)
-    return Appearance("truck", 0, base, secondary, pattern, param, _glass(rng),
-                      float(rng.uniform(0.2, 0.5)))
+    return Appearance("truck", variant, base, secondary, pattern, param, _glass(rng),
+                      float(rng.uniform(0.2, 0.5)), vehicle=_heavy_details(rng))
+
+
+def _sample_trailer(rng: np.random.Generator) -> Appearance:
+    """base: the body (box, tank, deck); secondary: the load of a flatbed."""
+    variant = int(rng.choice(len(TRAILER_VARIANTS), p=_TRAILER_SHARE))
+    base = _pick(_TRAILER, rng)
+    secondary = _pick(_TRUCK, rng)
+    pattern = DECAL if variant == 0 and rng.uniform() < 0.3 else SOLID
+    param = np.array([rng.uniform(-0.3, 0.3), rng.uniform(-0.1, 0.2), rng.uniform(1.0, 3.0),
+                      rng.uniform(0.3, 0.8)], np.float32)
+    return Appearance("trailer", variant, base, secondary, pattern, param, _glass(rng),
+                      float(rng.uniform(0.2, 0.6)), vehicle=_heavy_details(rng))
+
+
+def _sample_construction(rng: np.random.Generator) -> Appearance:
+    """base: the machine's livery; secondary: the counterweight and arm joints (dark)."""
+    variant = int(rng.choice(len(CONSTRUCTION_VARIANTS), p=_CONSTRUCTION_SHARE))
+    base = _pick(_CONSTRUCTION, rng, 0.1, 0.03)
+    secondary = (_srgb_to_linear((40, 40, 42)) * np.exp(rng.normal(0.0, 0.1))).astype(np.float32)
+    return Appearance("construction", variant, base, secondary, SOLID, np.zeros(4, np.float32), _glass(rng),
+                      float(rng.uniform(0.1, 0.3)), vehicle=_heavy_details(rng))
 
 
 def _sample_bus(rng: np.random.Generator) -> Appearance:
@@ -249,28 +455,48 @@ def _sample_bus(rng: np.random.Generator) -> Appearance:
              LOWER_BODY: [rng.uniform(0.3, 0.5), 0, 0, 0],
              DECAL: [rng.uniform(-0.3, 0.3), 0.0, rng.uniform(1.0, 2.5), rng.uniform(0.2, 0.35)]}
     return Appearance("bus", 0, base, secondary, pattern, np.array(param[pattern], np.float32),
-                      _glass(rng), float(rng.uniform(0.3, 0.6)))
+                      _glass(rng), float(rng.uniform(0.3, 0.6)), vehicle=_heavy_details(rng))
 
 
-def _sample_pedestrian(rng: np.random.Generator) -> Appearance:
+def _sample_pedestrian(rng: np.random.Generator, workwear: bool) -> Appearance:
     colours = _person_colours(rng)
-    variant = int(rng.integers(2))
-    backpack = rng.uniform() < 0.25
+    sleeves = int(rng.uniform() < _SHORT_SLEEVES)
+    legwear = int(rng.choice(len(LEGWEAR), p=_LEGWEAR_SHARE))
+    top_style = int(rng.choice(4, p=_TOP_STYLE_SHARE))
+    hair_style = int(rng.choice(len(HAIR_STYLES), p=_HAIR_STYLE_SHARE))
+    headwear = int(rng.choice(3, p=_HEADWEAR_SHARE))
+    bag = int(rng.choice(len(BAGS), p=_BAG_SHARE))
     secondary = _pick(_TOP, rng)
-    return Appearance("pedestrian", variant, colours["top"], secondary,
-                      BACKPACK if backpack else SOLID, np.zeros(4, np.float32),
-                      gloss=0.0, **colours)
+    if workwear:
+        top_style, headwear, secondary, legwear = HI_VIS_VEST, HARD_HAT, _pick(_HARD_HAT, rng), TROUSERS
+        colours["accent"] = _HI_VIS.copy()
+    if legwear == DRESS:
+        colours["bottom"] = colours["top"]
+    return Appearance("pedestrian", sleeves, colours["top"], secondary,
+                      BACKPACK if bag == BACKPACK_BAG else SOLID, np.zeros(4, np.float32),
+                      gloss=0.0, hair_style=hair_style, headwear=headwear, legwear=legwear,
+                      top_style=top_style, bag=bag, gait_phase=float(rng.uniform()), **colours)
 
 
 def _sample_cycle(kind: str, rng: np.random.Generator, rider: bool | None) -> Appearance:
-    base = _pick(_FRAME if kind == "bicycle" else _TRUCK, rng)
+    """A bicycle or motorcycle; the rider's helmet colour is `secondary`."""
+    motor = kind == "motorcycle"
+    base = _pick(_TRUCK if motor else _FRAME, rng)
     if rider is None:
         # nuScenes mini: cycle.without_rider 58.7 %, with_rider 41.3 %.
         rider = bool(rng.uniform() < 0.413)
     colours = _person_colours(rng)
     helmet = _pick(_FRAME, rng)
+    if motor:
+        headwear = FULL_FACE_HELMET if rng.uniform() < _FULL_FACE else OPEN_HELMET
+        top_style = OPEN_JACKET if rng.uniform() < 0.3 else PLAIN_TOP
+    else:
+        headwear = OPEN_HELMET if rng.uniform() < _BICYCLE_HELMET else NO_HEADWEAR
+        top_style = int(rng.choice(4, p=_TOP_STYLE_SHARE))
     return Appearance(kind, int(rng.integers(2)), base, helmet, SOLID, np.zeros(4, np.float32),
-                      gloss=0.5, rider=rider, **colours)
+                      gloss=0.5, rider=rider, hair_style=int(rng.choice(len(HAIR_STYLES), p=_HAIR_STYLE_SHARE)),
+                      headwear=headwear, legwear=TROUSERS, top_style=top_style,
+                      gait_phase=float(rng.uniform()), **colours)
 
 
 def _sample_static(kind: str, rng: np.random.Generator) -> Appearance:
@@ -298,22 +524,29 @@ def _sample_clutter(kind: str, rng: np.random.Generator) -> Appearance:
     return Appearance(kind, 0, _pick(base, rng), _pick(secondary, rng), gloss=0.0)
 
 
-def sample_appearance(kind: str, rng: np.random.Generator, rider: bool | None = None) -> Appearance:
+def sample_appearance(kind: str, rng: np.random.Generator, rider: bool | None = None,
+                      size_wlh=None, workwear: bool = False) -> Appearance:
     """Sample one instance's look with realistic colour frequencies.
 
     kind: one of `objects.KINDS`; rng: the only source of randomness (same state, same
     result); rider: for "bicycle" and "motorcycle", force a rider on (True) or off (False);
-    None samples it with the nuScenes share (41 % with rider). Raises ValueError for an
-    unknown kind.
+    None samples it with the nuScenes share (41 % with rider); size_wlh (3,): for "car",
+    the box the car will fill, so that its model fits it (None: the street mix alone);
+    workwear: for "pedestrian", a hi-vis vest and a hard hat (construction workers).
+    Raises ValueError for an unknown kind.
     """
     if kind == "car":
-        return _sample_car(rng)
+        return _sample_car(rng, size_wlh)
     if kind == "truck":
         return _sample_truck(rng)
     if kind == "bus":
         return _sample_bus(rng)
+    if kind == "trailer":
+        return _sample_trailer(rng)
+    if kind == "construction":
+        return _sample_construction(rng)
     if kind == "pedestrian":
-        return _sample_pedestrian(rng)
+        return _sample_pedestrian(rng, workwear)
     if kind in ("bicycle", "motorcycle"):
         return _sample_cycle(kind, rng, rider)
     if kind in ("barrier", "traffic_cone", "building"):
@@ -327,8 +560,9 @@ def sample_appearance(kind: str, rng: np.random.Generator, rider: bool | None = 
 class CameraStyle:
     """One camera's rendering of radiance into pixels.
 
-    exposure_stops: exposure offset in stops (multiplies linear radiance by 2**stops);
-    white_balance (3,) per-channel linear gains; noise_std: standard deviation of the
+    exposure_stops: exposure offset in stops (multiplies linear radiance by 2**stops), on
+    top of the auto exposure metered per frame by the renderer; white_balance (3,)
+    per-channel linear gains, around which each frame's white balance drifts; noise_std: standard deviation of the
     additive sensor noise in sRGB units of [0, 1]; vignetting: relative darkening at the
     image corners (0 = none).
     """

@@ -5,9 +5,15 @@ y down, z forward); rays are scaled so that the ray parameter is the camera z-de
 ground plane z = 0 is intersected by every pixel; each part then casts only the rays of
 the pixels inside its projected bounding rectangle, and a depth buffer keeps the nearest
 surface. Shading: sun (Lambert, with cast shadows of the objects on every surface) plus a
-sky ambient term by normal, a Fresnel reflection of the sky on paint and glass,
-procedural detail by material, distance haze, then the camera's style (exposure, white
-balance, vignetting, noise) and sRGB encoding.
+sky ambient term by normal, a Fresnel reflection of the sky (with its seeded cloud layer)
+and of the road on paint and glass (metallic paints tint theirs), procedural detail by
+material (facades with windows, shopfronts, doors, signs and awnings), distance haze.
+The scene's `Conditions` change the light: at night no sun, a dark sky with the city's
+glow, emitting lamps, street-light pools and lit windows; under rain an overcast sky, no
+hard shadows and a darker, mirroring wet road. The whole frame's radiance is then seen
+through the lens (night motion blur, sun glare and ghosts, rain drops), metered (auto
+exposure on top of the camera's fixed offset, white balance drifting per frame), and
+encoded by the camera's style (vignetting, tone curve, sRGB, noise).
 
 The generator renders six cameras per keyframe with numpy alone, so the work per pixel is
 kept small:
@@ -29,6 +35,7 @@ kept small:
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from statistics import NormalDist
@@ -37,6 +44,7 @@ import numpy as np
 
 from sianms_cli.synth import shapes
 from sianms_cli.synth.appearance import DECAL, LOWER_BODY, SIDE_STRIPE, SOLID, CameraStyle, stack_appearances
+from sianms_cli.synth.conditions import Conditions
 from sianms_cli.synth.raycast import T_MIN, slab_interval
 from sianms_cli.synth.shapes import Parts
 
@@ -46,6 +54,32 @@ SKY_AMBIENT = np.array([0.30, 0.33, 0.38], np.float32)
 HORIZON = np.array([0.80, 0.86, 0.95], np.float32)
 ZENITH = np.array([0.22, 0.38, 0.78], np.float32)
 HAZE_DISTANCE = 900.0   # metres for 63 % haze
+# Night. Night cameras expose some 8-10 stops more than by day; the night radiances below
+# are in units of that exposure, so a road under a street lamp lands near mid-grey as in
+# real night footage (our own estimate, from nuScenes night images).
+NIGHT_AMBIENT = np.array([0.012, 0.013, 0.017], np.float32)   # moon and sky glow, scattered
+NIGHT_HORIZON = np.array([0.075, 0.055, 0.038], np.float32)   # city sky glow (sodium/LED, orange)
+NIGHT_ZENITH = np.array([0.006, 0.007, 0.012], np.float32)
+HEADLIGHT_RADIANCE = np.array([9.0, 8.7, 8.0], np.float32)     # saturates, as lamps do on camera
+STREET_LAMP_RADIANCE = np.array([9.0, 7.8, 5.6], np.float32)
+STREET_LAMP_COLOUR = np.array([1.0, 0.87, 0.62], np.float32)   # 3000-4000 K LED / high-pressure sodium mix
+TAILLIGHT_RADIANCE = 3.0
+LAMP_INTENSITY = 110.0  # irradiance x m^2: about 1.7 (a bright road) under an 8 m lamp
+LIGHT_RANGE = 70.0      # metres; a lamp's pool is below 1 % of its peak beyond some 40 m
+MAX_GLINTS = 24         # nearest emitters mirrored by a wet road
+GLINT_FRESNEL = 0.5  # water's Fresnel reflectance at the grazing angles a road is seen at
+GLINT_SHARE = 0.15      # a mirror image's core radiance over the emitter's
+NIGHT_NOISE_GAIN = 2.5  # sensor noise at night gain over day (our own estimate: +2-3 stops of gain)
+# Rain: an overcast sky (no sun, no hard shadows) and a wet road.
+RAIN_HORIZON = np.array([0.50, 0.52, 0.55], np.float32)
+RAIN_ZENITH = np.array([0.36, 0.38, 0.42], np.float32)
+RAIN_AMBIENT = np.array([0.42, 0.44, 0.47], np.float32)
+RAIN_HAZE_DISTANCE = 400.0  # metres; moderate rain cuts visibility to 1-2 km
+WET_ROAD_MIRROR = 0.8   # share of a wet road that mirrors (film and puddles; our own estimate)
+WET_DARKENING = 0.6     # wet asphalt keeps ~60 % of its dry albedo (Lekner & Dorf 1988, Appl. Opt. 27)
+WATER_F0 = 0.02         # Fresnel reflectance of water at normal incidence (n = 1.33)
+DAY_CLOUD_COVER_MAX = 0.7
+WINDOW_GLOW = np.array([0.35, 0.27, 0.17], np.float32)  # a lit room behind a window at night (warm)
 GROUND_RANGE = 2000.0   # metres; the ground beyond is drawn as sky
 EXPOSURE = 1.0
 WHITE_POINT = 3.0       # linear radiance mapped to full white by the tone curve
@@ -568,17 +602,268 @@ def _wrap(x: np.ndarray, period) -> np.ndarray:
     return x - np.floor(x / period) * period
 
 
-def _sky_radiance(dirs: np.ndarray, sun: np.ndarray) -> np.ndarray:
-    """(3,n) float32 linear sky radiance along unit directions dirs (3,n) float32: a
-    horizon-to-zenith gradient by elevation, brighter around the sun; below the horizon
-    the horizon colour, dimmed."""
-    dz = dirs[2]
-    t = np.sqrt(np.clip(dz, 0.0, 1.0))
-    away = 1 - np.clip(dirs[0] * sun[0] + dirs[1] * sun[1] + dz * sun[2], -1.0, 1.0)
-    # cos^n is close to exp(-n (1 - cos)) near the sun, and far cheaper.
-    glow = _F32(0.5) * np.exp(_F32(-12.0) * away) + _F32(3.0) * np.exp(_F32(-2000.0) * away)
-    col = HORIZON[:, None] + (ZENITH - HORIZON)[:, None] * t + np.array([1.0, 0.9, 0.75], _F32)[:, None] * glow
-    return np.where(dz < 0.0, (HORIZON * _F32(0.8))[:, None], col)
+_CLOUD_LATTICE = 64      # lattice cells of the cloud noise's first octave per period
+_CLOUD_TEXELS = 8        # texels of the baked cloud texture per first-octave cell
+_CLOUD_OCTAVES = ((1, 0.55), (2, 0.28), (4, 0.17))  # (frequency, weight) of the value noise
+
+
+def _value_noise(lattice: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Smooth value noise in [0, 1] at float64 points (x, y) (n,) of a periodic square
+    lattice (L,L) of values, interpolated with a smoothstep."""
+    size = lattice.shape[0]
+    x0, y0 = np.floor(x), np.floor(y)
+    fx, fy = x - x0, y - y0
+    i, j = x0.astype(np.intp) % size, y0.astype(np.intp) % size
+    i1, j1 = (i + 1) % size, (j + 1) % size
+    sx, sy = fx * fx * (3 - 2 * fx), fy * fy * (3 - 2 * fy)
+    bottom = lattice[j, i] + sx * (lattice[j, i1] - lattice[j, i])
+    top = lattice[j1, i] + sx * (lattice[j1, i1] - lattice[j1, i])
+    return bottom + sy * (top - bottom)
+
+
+@functools.lru_cache(maxsize=8)
+def _cloud_texture(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(N*N,) float32 periodic cloud noise texture of a sky seed, N = _CLOUD_LATTICE *
+    _CLOUD_TEXELS texels a side: the octaves of value noise summed once, so that a pixel
+    costs one bilinear look-up (cached: every camera and frame of a scene shares it); and
+    its percentiles (101,), so that a cloud cover is a share of the texture."""
+    rng = np.random.default_rng(seed)
+    n = _CLOUD_LATTICE * _CLOUD_TEXELS
+    x = (np.arange(n) + 0.5) / _CLOUD_TEXELS
+    xx, yy = np.meshgrid(x, x)
+    texture = np.zeros((n, n))
+    for frequency, weight in _CLOUD_OCTAVES:
+        lattice = rng.random((_CLOUD_LATTICE * frequency, _CLOUD_LATTICE * frequency))
+        texture += weight * _value_noise(lattice, xx * frequency, yy * frequency)
+    return texture.astype(_F32).reshape(-1), np.percentile(texture, np.arange(101))
+
+
+def _bilinear(texture: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(n,) float32 bilinear look-up of a periodic square texture (N*N,) float32 at
+    float32 texel coordinates (x, y) (n,)."""
+    n = _CLOUD_LATTICE * _CLOUD_TEXELS
+    x0, y0 = np.floor(x), np.floor(y)
+    fx, fy = x - x0, y - y0
+    i = x0.astype(np.intp) & (n - 1)
+    j = (y0.astype(np.intp) & (n - 1)) * n
+    i1 = (i + 1) & (n - 1)
+    j1 = (j + n) & (n * n - 1)
+    a, b = np.take(texture, j + i), np.take(texture, j + i1)
+    c, d = np.take(texture, j1 + i), np.take(texture, j1 + i1)
+    bottom = a + fx * (b - a)
+    return bottom + fy * (c + fx * (d - c) - bottom)
+
+
+@dataclass(frozen=True)
+class _Sky:
+    """The sky of a scene, fixed in the global frame (the same for every camera of it).
+
+    sun (3,) float32 unit direction; horizon, zenith (3,) float32 radiance of the clear sky;
+    sun_glow: strength of the brightening around the sun (0 when it is hidden); cover in
+    [0, 1]: the share of the sky under cloud; cloud_light, cloud_dark (3,) float32: the
+    radiance of thin and thick cloud; texture: the cloud noise (`_cloud_texture`) and
+    threshold: its value above which there is cloud; below (3,) float32: what a ray below the horizon sees (distant ground).
+    """
+
+    sun: np.ndarray
+    horizon: np.ndarray
+    zenith: np.ndarray
+    sun_glow: float
+    cover: float
+    cloud_light: np.ndarray
+    cloud_dark: np.ndarray
+    texture: np.ndarray
+    threshold: float
+    below: np.ndarray
+
+    def radiance(self, dirs: np.ndarray) -> np.ndarray:
+        """(3,n) float32 linear radiance along unit directions dirs (3,n) float32: a
+        horizon-to-zenith gradient, a glow around the sun, a cloud layer; below the
+        horizon `below`."""
+        dz = dirs[2]
+        t = np.sqrt(np.clip(dz, 0.0, 1.0))
+        col = self.horizon[:, None] + (self.zenith - self.horizon)[:, None] * t
+        cloud = self.cloud_density(dirs) if self.cover > 0.0 else None
+        if self.sun_glow > 0.0:
+            sun = self.sun
+            away = 1 - np.clip(dirs[0] * sun[0] + dirs[1] * sun[1] + dz * sun[2], -1.0, 1.0)
+            # cos^n is close to exp(-n (1 - cos)) near the sun, and far cheaper.
+            glow = _F32(0.5) * np.exp(_F32(-12.0) * away) + _F32(3.0) * np.exp(_F32(-2000.0) * away)
+            if cloud is not None:
+                glow *= 1 - _F32(0.8) * cloud  # cloud veils the sun
+            col += np.array([1.0, 0.9, 0.75], _F32)[:, None] * (_F32(self.sun_glow) * glow)
+        if cloud is not None:
+            # Thick cloud (density near 1) is darker underneath than thin cloud.
+            shade = self.cloud_light[:, None] + (self.cloud_dark - self.cloud_light)[:, None] * (cloud * cloud)
+            col += (shade - col) * cloud
+        return np.where(dz < 0.0, self.below[:, None], col)
+
+    def cloud_density(self, dirs: np.ndarray) -> np.ndarray:
+        """(n,) float32 cloud density in [0, 1] along dirs (3,n): noise on a cloud deck
+        (coordinates x/z, y/z of the direction), thresholded at the cover. Towards the
+        horizon the deck recedes past the noise's detail, so it fades to its mean."""
+        lift = np.maximum(dirs[2], _F32(0.0)) + _F32(0.12)
+        scale = _F32(2.2 * _CLOUD_TEXELS)  # first-octave cells per unit of the deck's coordinates
+        noise = _bilinear(self.texture, dirs[0] / lift * scale, dirs[1] / lift * scale)
+        # Cloud where the noise passes the cover's threshold, thickening over 0.1 above it;
+        # an overcast sky (cover 1) is thick everywhere, its noise shading it.
+        density = np.clip((noise - _F32(self.threshold)) * _F32(10.0) + _F32(self.cover ** 4), 0.0, 1.0)
+        fade = np.clip(dirs[2] * _F32(6.0), 0.0, 1.0)
+        return _F32(self.cover) + (density - _F32(self.cover)) * fade
+
+
+@dataclass(frozen=True)
+class _Lights:
+    """Light sources of a night frame, camera-relative: position (3,L) float32; colour (3,L)
+    float32 intensity (irradiance times squared metres at the source's down axis)."""
+
+    position: np.ndarray
+    colour: np.ndarray
+
+    def irradiance(self, points: np.ndarray, normal: np.ndarray | None) -> np.ndarray:
+        """(3,n) float32 irradiance at camera-relative points (3,n) with unit normals (3,n)
+        (None: facing up). Each source is a small downward-facing Lambertian emitter:
+        intensity times cos(emission) cos(incidence) over the squared distance; no shadows."""
+        d = self.position[:, None, :] - points[:, :, None]  # (3,n,L) towards each light
+        d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2] + _F32(0.25)  # +0.25 m^2: no pole at the lamp
+        inv = _F32(1.0) / d2
+        cos_emit = np.maximum(d[2], 0.0) * np.sqrt(inv)
+        cos_in = cos_emit if normal is None else \
+            np.maximum(normal[0][:, None] * d[0] + normal[1][:, None] * d[1] + normal[2][:, None] * d[2], 0.0) * \
+            np.sqrt(inv)
+        return (self.colour @ (cos_emit * cos_in * inv).T).astype(_F32)
+
+
+@dataclass(frozen=True)
+class _Glints:
+    """Bright emitters mirrored by a wet road: position (3,E) float32 camera-relative,
+    radiance (3,E) float32 of their mirror image's core."""
+
+    position: np.ndarray
+    radiance: np.ndarray
+
+    def draw(self, image: np.ndarray, road: np.ndarray, view: _View, fresnel: float) -> None:
+        """Add the emitters' mirror images to the road pixels road (H,W) bool of a (3,H,W)
+        radiance image, in place: each a vertical streak about 1 degree wide and four
+        times as tall, the blur of rough wet asphalt that stretches along the line of sight
+        (our own estimate), times the road's Fresnel reflectance fresnel."""
+        mirrored = self.position.astype(np.float64)
+        mirrored[2] = -2.0 * view.origin[2] - mirrored[2]  # z -> -z about the ground, camera-relative
+        cam = view.world_to_cam[:3, :3] @ mirrored
+        spread = 0.009 * view.intrinsic[0, 0]  # pixels per standard deviation across the streak
+        for (x, y, z), colour in zip(cam.T, self.radiance.T):
+            if z <= NEAR:
+                continue
+            u, v = view.intrinsic[0, 0] * x / z + view.intrinsic[0, 2], view.intrinsic[1, 1] * y / z + view.intrinsic[1, 2]
+            u0, u1 = max(int(u - 3 * spread), 0), min(int(u + 3 * spread) + 1, view.width)
+            v0, v1 = max(int(v - 12 * spread), 0), min(int(v + 12 * spread) + 1, view.height)
+            if u0 >= u1 or v0 >= v1:
+                continue
+            du = (np.arange(u0, u1, dtype=_F32) + _F32(0.5 - u)) / _F32(spread)
+            dv = (np.arange(v0, v1, dtype=_F32) + _F32(0.5 - v)) / _F32(4 * spread)
+            lobe = np.exp(_F32(-0.5) * (dv[:, None] ** 2 + du[None, :] ** 2)) * road[v0:v1, u0:u1]
+            image[:, v0:v1, u0:u1] += (_F32(fresnel) * colour)[:, None, None] * lobe
+
+
+@dataclass(frozen=True)
+class _Lighting:
+    """How a frame is lit.
+
+    sky: the `_Sky`; sun (3,) float32 unit direction; sun_light (3,) float32 sun irradiance
+    (colour times strength; zero at night and under rain cloud); ambient (3,) float32 sky
+    irradiance of an upward surface; haze (3,) float32 colour and haze_distance metres of
+    the air; ground_seen (3,) float32 radiance of the road as paint reflects it; wetness in
+    [0, 1]: share of the road's mirror reflection; lights: street-light pools (None when
+    none); glints: emitters mirrored by a wet road (None when none); night: emitters glow.
+    """
+
+    sky: _Sky
+    sun: np.ndarray
+    sun_light: np.ndarray
+    ambient: np.ndarray
+    haze: np.ndarray
+    haze_distance: float
+    ground_seen: np.ndarray
+    wetness: float
+    lights: _Lights | None
+    glints: _Glints | None
+    night: bool
+
+
+def _sky(conditions: Conditions, sun: np.ndarray, sky_seed: int) -> _Sky:
+    """The scene's sky: clear with a seeded share of cloud by day, overcast under rain, a
+    dark sky with the city's glow near the horizon at night."""
+    rng = np.random.default_rng(sky_seed)
+    texture, levels = _cloud_texture(sky_seed)
+    cover = 1.0 if conditions.rain else float(rng.uniform(0.0, DAY_CLOUD_COVER_MAX))
+    threshold = float(np.interp(100.0 * (1.0 - cover), np.arange(101), levels))
+    if conditions.night:
+        # Clouds at night are lit from below by the city: no brighter than the glow.
+        return _Sky(sun.astype(_F32), NIGHT_HORIZON, NIGHT_ZENITH, 0.0, cover, NIGHT_HORIZON * _F32(0.5),
+                    NIGHT_HORIZON * _F32(0.3), texture, threshold, NIGHT_AMBIENT * _F32(0.5))
+    if conditions.rain:
+        return _Sky(sun.astype(_F32), RAIN_HORIZON, RAIN_ZENITH, 0.0, cover, RAIN_HORIZON, RAIN_HORIZON * _F32(0.6),
+                    texture, threshold, RAIN_HORIZON * _F32(0.6))
+    return _Sky(sun.astype(_F32), HORIZON, ZENITH, 1.0, cover, np.array([0.95, 0.95, 0.97], _F32),
+                np.array([0.55, 0.57, 0.62], _F32), texture, threshold, HORIZON * _F32(0.8))
+
+
+def _emission(parts: Parts) -> np.ndarray:
+    """(M,3) float32 radiance each part emits at night: headlights and street lamps
+    (HEADLIGHT), tail lights and signal lamps in their own colour (TAILLIGHT), zero for
+    the others."""
+    emission = np.zeros((len(parts), 3), _F32)
+    headlight = parts.material == shapes.HEADLIGHT
+    emission[headlight & (parts.owner >= 0)] = HEADLIGHT_RADIANCE
+    emission[headlight & (parts.owner < 0)] = STREET_LAMP_RADIANCE
+    tail = np.flatnonzero(parts.material == shapes.TAILLIGHT)
+    if len(tail) and parts.albedo is not None:
+        colour = parts.albedo[tail].astype(_F32)
+        emission[tail] = TAILLIGHT_RADIANCE * colour / np.maximum(colour.max(axis=1, keepdims=True), _F32(1e-3))
+    return emission
+
+
+def _night_sources(parts: Parts, view: _View, emission: np.ndarray, wet: bool) -> tuple[_Lights | None, _Glints | None]:
+    """Street-light pools (the luminaires within LIGHT_RANGE, lighting from their
+    underside) and, on a wet road, the emitters it mirrors (the MAX_GLINTS nearest within
+    LIGHT_RANGE)."""
+    offset = parts.center - view.origin
+    near = np.hypot(offset[:, 0], offset[:, 1]) < LIGHT_RANGE
+    lamp = np.flatnonzero(near & (parts.material == shapes.HEADLIGHT) & (parts.owner < 0))
+    lights = None
+    if len(lamp):
+        position = offset[lamp] - np.array([0.0, 0.0, 1.0]) * parts.half_size[lamp, 2:3]
+        lights = _Lights(np.ascontiguousarray(position.T, _F32),
+                         np.ascontiguousarray((LAMP_INTENSITY * STREET_LAMP_COLOUR)[:, None].repeat(len(lamp), 1)))
+    glints = None
+    # Only emitters whose mirror image (below the road) may be in view.
+    mirrored = parts.center * np.array([1.0, 1.0, -1.0])
+    emitter = np.flatnonzero(near & emission.any(axis=1) & _in_frustum(mirrored, np.full(len(parts), 2.0), view))
+    if wet and len(emitter):
+        emitter = emitter[np.argsort(np.hypot(offset[emitter, 0], offset[emitter, 1]), kind="stable")[:MAX_GLINTS]]
+        glints = _Glints(np.ascontiguousarray(offset[emitter].T, _F32),
+                         np.ascontiguousarray((GLINT_SHARE * emission[emitter]).T, _F32))
+    return lights, glints
+
+
+def _lighting(conditions: Conditions, sun: np.ndarray, sky_seed: int, parts: Parts, view: _View,
+              emission: np.ndarray) -> _Lighting:
+    """How a frame is lit under its conditions (see `_Lighting`)."""
+    sky = _sky(conditions, sun, sky_seed)
+    wetness = WET_ROAD_MIRROR if conditions.rain else 0.0
+    if conditions.night:
+        lights, glints = _night_sources(parts, view, emission, conditions.rain)
+        ambient, sun_light, haze = NIGHT_AMBIENT, np.zeros(3, _F32), NIGHT_HORIZON
+    else:
+        lights = glints = None
+        ambient = RAIN_AMBIENT if conditions.rain else SKY_AMBIENT
+        sun_light = np.zeros(3, _F32) if conditions.rain else (SUN_IRRADIANCE * SUN_COLOUR).astype(_F32)
+        haze = RAIN_HORIZON if conditions.rain else HORIZON
+    # The road as the lower body of a car mirrors it: dark asphalt under the frame's light.
+    ground_seen = (_F32(0.1) * (ambient + sun_light * _F32(max(float(sun[2]), 0.0)))).astype(_F32)
+    return _Lighting(sky, sun.astype(_F32), sun_light, ambient, haze,
+                     RAIN_HAZE_DISTANCE if conditions.rain else HAZE_DISTANCE, ground_seen, wetness, lights, glints,
+                     conditions.night)
 
 
 @dataclass(frozen=True)
@@ -678,25 +963,64 @@ def _greenhouse(hits: _Hits, frame_colour, glass_colour):
     return np.where(frame, frame_colour, glass_colour), ~frame
 
 
+def _hash01(a: np.ndarray, b: np.ndarray, seed: np.ndarray) -> np.ndarray:
+    """Float32 pseudo-random values in [0, 1) from integer-valued cells (a, b) and seeds
+    (same shapes): the usual shader hash, cheap and deterministic."""
+    x = np.sin(a * _F32(12.9898) + b * _F32(78.233) + seed * _F32(37.719)) * _F32(43758.547)
+    return x - np.floor(x)
+
+
+# Shopfront sign colours (linear albedo): red, blue, green, yellow, white, black.
+_SIGN_COLOURS = np.array([[0.45, 0.04, 0.03], [0.03, 0.10, 0.40], [0.04, 0.25, 0.08], [0.60, 0.45, 0.05],
+                          [0.70, 0.70, 0.68], [0.03, 0.03, 0.03]], np.float32).T
+
+
 def _facade(hits: _Hits, wall, glass_colour, seed):
-    """Building wall: a window grid on the upper floors and shop windows at street level."""
+    """Building wall: a window grid on the upper floors (its bay, floor height and window
+    size vary by building), and at street level shop windows, doors, and above them a
+    shopfront sign (a coloured band with lettering) or a striped awning.
+
+    Returns the albedo (3,Q), the glass mask (Q,) and the windows lit at night (Q,) bool
+    (about a third of them, our own estimate for the evening)."""
     (x, y, z), (hx, hy, hz), axis = hits.local, hits.half, hits.axis
     along = np.where(axis == 0, y, x)
     along_half = np.where(axis == 0, hy, hx)
     height = z + hz
+    across = along + along_half
     bay = _F32(2.6) + _F32(1.4) * seed
     floor = _F32(3.1) + _F32(0.4) * seed
-    fu = _wrap(along + along_half, bay) - bay / 2
+    variant = _hash01(seed, seed, seed)
+    window_width = (_F32(0.22) + _F32(0.16) * variant) * bay
+    window_top = _F32(2.0) + _F32(0.45) * _hash01(seed, variant, seed)
+    fu = _wrap(across, bay) - bay / 2
     fv = _wrap(height, floor)
     side = axis != 2
     upper = (height > 3.6) & (np.abs(along) < along_half - _F32(0.8)) & (height < 2 * hz - _F32(1.0)) & side
-    window = upper & (np.abs(fu) < _F32(0.3) * bay) & (fv > 0.9) & (fv < 2.4)
-    shop = (height > 0.5) & (height < 2.9) & (np.abs(along) < along_half - _F32(0.6)) & \
-        (np.abs(_wrap(along + along_half, _F32(4.0)) - _F32(2.0)) < 1.85) & side
+    window = upper & (np.abs(fu) < window_width) & (fv > 0.9) & (fv < window_top)
+    street = (np.abs(along) < along_half - _F32(0.6)) & side
+    shop_index = np.floor(across / _F32(4.0))
+    su = across - shop_index * _F32(4.0) - _F32(2.0)
+    shop_bay = street & (np.abs(su) < 1.85)
+    door = shop_bay & (height < 2.2) & (np.abs(su + _F32(1.0)) < 0.5) & (_hash01(shop_index, seed, seed) < 0.4)
+    shop = shop_bay & (height > 0.5) & (height < 2.9) & ~door
     glass = window | shop
-    sill = upper & (np.abs(fu) < _F32(0.3) * bay + _F32(0.08)) & (fv > 0.78) & (fv <= 0.9)
+    sill = upper & (np.abs(fu) < window_width + _F32(0.08)) & (fv > 0.78) & (fv <= 0.9)
     colour = np.where(glass, glass_colour, wall)
-    return np.where(sill, np.minimum(wall * _F32(1.4), _F32(0.9)), colour), glass
+    colour = np.where(sill, np.minimum(wall * _F32(1.4), _F32(0.9)), colour)
+    colour = np.where(door, wall * _F32(0.3), colour)
+    # Over each shop: a sign board or, in some streets' buildings, a striped awning.
+    band = street & (height >= 2.95) & (height < 3.5)
+    shop_pick = _hash01(shop_index, seed, variant)
+    sign_colour = np.take(_SIGN_COLOURS, np.minimum((shop_pick * 6).astype(np.intp), 5), axis=1)
+    lettering = (np.abs(height - _F32(3.22)) < 0.1) & (_wrap(across * _F32(3.1), _F32(1.0)) < 0.6) & \
+        (np.abs(su) < 1.2)
+    awning = variant < 0.35
+    stripe = _wrap(across, _F32(0.5)) < 0.25
+    band_colour = np.where(awning, np.where(stripe, sign_colour, _F32(0.75)),
+                           np.where(lettering, _F32(0.85) - sign_colour * _F32(0.8), sign_colour))
+    colour = np.where(band, band_colour, colour)
+    lit = window & (_hash01(np.floor(across / bay), np.floor(height / floor), seed) < 0.33)
+    return colour, glass, lit
 
 
 def _paint_pattern(hits: _Hits, base, pattern, param, secondary):
@@ -716,7 +1040,8 @@ def _paint_pattern(hits: _Hits, base, pattern, param, secondary):
 
 
 def _surface(table: _PartTable, hits: _Hits, looks: _Looks):
-    """Albedo (3,Q) float32, glass mask (Q,) and gloss (Q,) float32 of part surface points."""
+    """Albedo (3,Q) float32, glass mask (Q,), gloss (Q,) float32 and facade windows lit
+    at night (Q,) bool of part surface points."""
     material = np.take(table.material, hits.part)
     owner = np.take(table.owner, hits.part)
     albedo = _take(table.albedo, hits.part)
@@ -740,10 +1065,11 @@ def _surface(table: _PartTable, hits: _Hits, looks: _Looks):
         _put(albedo, idx, colour)
         gloss[idx] = looks.gloss[owner[idx]]
 
+    lit = np.zeros(len(material), bool)
     idx = np.flatnonzero(material == shapes.FACADE)
     if len(idx):
-        colour, glass[idx] = _facade(hits.take(idx), _take(albedo, idx), _take(looks.glass, owner[idx]),
-                                     np.take(table.facade_seed, hits.part[idx]))
+        colour, glass[idx], lit[idx] = _facade(hits.take(idx), _take(albedo, idx), _take(looks.glass, owner[idx]),
+                                               np.take(table.facade_seed, hits.part[idx]))
         _put(albedo, idx, colour)
 
     idx = np.flatnonzero((material == shapes.TYRE) & (hx > 0.2) & (hits.axis == 1))
@@ -759,73 +1085,107 @@ def _surface(table: _PartTable, hits: _Hits, looks: _Looks):
         _put(albedo, idx, np.where(white, _F32(0.8), _take(albedo, idx)))
 
     gloss[glass] = 1.0
-    return albedo, glass, gloss
+    return albedo, glass, gloss, lit
 
 
-def _part_radiance(table: _PartTable, looks: _Looks, hits: _Hits, n, z_world, view_dir, shadow, sun):
+def _part_radiance(scene: _Scene, hits: _Hits, n, points, z_world, view_dir, shadow):
     """(3,Q) float32 linear radiance leaving part surface points towards the camera.
 
-    n (3,Q) float32 global normal; z_world (Q,) float32 height above the ground;
-    view_dir(idx) -> (3,n) float32 unit rays of points idx; shadow (Q,) bool; sun (3,)
-    float32."""
-    albedo, glass, gloss = _surface(table, hits, looks)
+    n (3,Q) float32 global normal; points (3,Q) float32 camera-relative position; z_world
+    (Q,) float32 height above the ground; view_dir(idx) -> (3,n) float32 unit rays of
+    points idx; shadow (Q,) bool."""
+    light = scene.lighting
+    sun, sun_light = light.sun, light.sun_light
+    albedo, glass, gloss, lit = _surface(scene.part_table, hits, scene.looks)
     cos_sun = np.maximum(n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2], 0.0) * ~shadow
     # Contact darkening: surfaces near the ground see less sky (ambient occlusion).
     occlusion = np.clip(_F32(0.45) + _F32(0.55 / 0.7) * z_world, 0.45, 1.0)
     ambient = (_F32(0.75) + _F32(0.25) * n[2]) * occlusion
-    radiance = albedo * ((SUN_IRRADIANCE * SUN_COLOUR)[:, None] * cos_sun + SKY_AMBIENT[:, None] * ambient)
+    irradiance = sun_light[:, None] * cos_sun + light.ambient[:, None] * ambient
+    if light.lights is not None:
+        irradiance += light.lights.irradiance(points, n)
+    radiance = albedo * irradiance
 
     shiny = np.flatnonzero(glass | (gloss > 0))
     if len(shiny):
         ns, vs = _take(n, shiny), view_dir(shiny)
         v_dot_n = (vs * ns).sum(axis=0)
         refl = vs - 2 * v_dot_n * ns
-        env = np.where(refl[2] > 0.0, _sky_radiance(refl, sun), _F32(0.1))
+        # Lower panels mirror the road, the others the sky (clouds included).
+        env = np.where(refl[2] > 0.0, light.sky.radiance(refl), light.ground_seen[:, None])
         fresnel = _F32(0.04) + _F32(0.96) * (1 - np.abs(v_dot_n)) ** 5
-        weight = np.where(glass[shiny], fresnel, gloss[shiny] * fresnel)
+        g = gloss[shiny]
+        weight = np.where(glass[shiny], fresnel, g * fresnel)
+        # Metallic paints (gloss from 0.6, see the car paints in appearance.py) tint their
+        # reflection with the paint colour and spread the highlight; solid paints do not.
+        base = _take(albedo, shiny)
+        metal = np.clip((g - _F32(0.6)) * _F32(3.0), 0.0, 1.0) * ~glass[shiny]
+        tint = 1 + metal * (base / np.maximum(base.max(axis=0), _F32(0.02)) - 1)
         to_sun = refl[0] * sun[0] + refl[1] * sun[1] + refl[2] * sun[2]
-        highlight = gloss[shiny] * _F32(6.0) * np.exp(_F32(-300.0) * (1 - np.clip(to_sun, 0.0, 1.0)))
+        sharpness = _F32(300.0) - _F32(200.0) * metal
+        highlight = g * _F32(6.0) * np.exp(-sharpness * (1 - np.clip(to_sun, 0.0, 1.0)))
         highlight *= cos_sun[shiny] > 0
-        _put(radiance, shiny, _take(radiance, shiny) * (1 - weight) + weight * env + SUN_COLOUR[:, None] * highlight)
+        _put(radiance, shiny, _take(radiance, shiny) * (1 - weight)
+             + tint * (weight * env + (sun_light / SUN_IRRADIANCE)[:, None] * highlight))
+    if scene.emission is not None:
+        glow = np.take(scene.emission, hits.part, axis=1)
+        radiance += glow + lit * WINDOW_GLOW[:, None]
     return radiance
 
 
-def _ground_radiance(ground_shader, xy: np.ndarray, shadow: np.ndarray, sun: np.ndarray) -> np.ndarray:
-    """(3,G) float32 linear radiance of ground points xy (G,2) global float64; shadow (G,)."""
-    albedo = np.clip(ground_shader(xy), 0.0, 1.0).T.astype(_F32)
-    lit = SKY_AMBIENT + (SUN_IRRADIANCE * max(float(sun[2]), 0.0)) * SUN_COLOUR
-    return albedo * np.where(shadow, SKY_AMBIENT[:, None], lit[:, None])
+def _ground_radiance(scene: _Scene, xy: np.ndarray, points: np.ndarray, dirs: np.ndarray,
+                     shadow: np.ndarray) -> np.ndarray:
+    """(3,G) float32 linear radiance of ground points xy (G,2) global float64, points
+    (3,G) float32 camera-relative, seen along unit rays dirs (3,G); shadow (G,) bool.
+
+    A wet road is darker and mirrors the sky by Fresnel reflectance (water, Schlick's
+    approximation) on WET_ROAD_MIRROR of its surface; the night's emitters it mirrors are
+    drawn on the whole frame (`_Glints.draw`)."""
+    light = scene.lighting
+    albedo = np.clip(scene.ground_shader(xy), 0.0, 1.0).T.astype(_F32)
+    lit = light.ambient + light.sun_light * _F32(max(float(light.sun[2]), 0.0))
+    irradiance = np.where(shadow, light.ambient[:, None], lit[:, None])
+    if light.lights is not None:
+        irradiance = irradiance + light.lights.irradiance(points, None)
+    if light.wetness == 0.0:
+        return albedo * irradiance
+    radiance = albedo * irradiance * _F32(WET_DARKENING)
+    mirror = dirs * np.array([[1.0], [1.0], [-1.0]], _F32)
+    fresnel = _F32(light.wetness) * (_F32(WATER_F0) + _F32(1 - WATER_F0) * (1 + dirs[2]) ** 5)
+    return radiance + (light.sky.radiance(mirror) - radiance) * fresnel
 
 
-def _hazy(radiance: np.ndarray, distance: np.ndarray) -> np.ndarray:
-    """Radiance (3,n) seen through distance (n,) metres of haze."""
-    clear = np.exp(distance * _F32(-1.0 / HAZE_DISTANCE))
-    return HORIZON[:, None] + (radiance - HORIZON[:, None]) * clear
+def _hazy(radiance: np.ndarray, distance: np.ndarray, lighting: _Lighting) -> np.ndarray:
+    """Radiance (3,n) seen through distance (n,) metres of the frame's haze."""
+    clear = np.exp(distance * _F32(-1.0 / lighting.haze_distance))
+    return lighting.haze[:, None] + (radiance - lighting.haze[:, None]) * clear
 
 
 @dataclass(frozen=True)
 class _Scene:
     """What shading needs besides the buffers: the parts' table, their owners' looks, the
-    ground shader, the view, the unit sun direction (3,) float64, and the shadow casters
-    (None when nothing casts a shadow)."""
+    ground shader, the view, the frame's lighting, the shadow casters (None when nothing
+    casts a shadow) and the parts' emitted radiance (3,M) float32 (None by day)."""
 
     part_table: _PartTable
     looks: _Looks
     ground_shader: Callable[[np.ndarray], np.ndarray]
     view: _View
-    sun: np.ndarray
+    lighting: _Lighting
     casters: _Casters | None
+    emission: np.ndarray | None
 
 
 def _shade(scene: _Scene, depth: np.ndarray, part_buf: np.ndarray, ray_len: np.ndarray, rows: slice) -> np.ndarray:
     """(3,n) float32 linear radiance of the pixels of a band of rows, from the band's
     depth (n,), part_buf (n,) intp and ray_len (n,)."""
     view = scene.view
-    sun = scene.sun.astype(_F32)
+    light = scene.lighting
+    sun = light.sun
     rays = _pixel_rays(view, rows)
     radiance = np.empty((3, len(depth)), _F32)
     sky = np.flatnonzero(depth == np.inf)
-    _put(radiance, sky, _sky_radiance(_take(rays, sky) / ray_len[sky], sun))
+    _put(radiance, sky, light.sky.radiance(_take(rays, sky) / ray_len[sky]))
 
     ground = np.flatnonzero((part_buf < 0) & (depth < np.inf))
     on_part = np.flatnonzero(part_buf >= 0)
@@ -844,42 +1204,159 @@ def _shade(scene: _Scene, depth: np.ndarray, part_buf: np.ndarray, ray_len: np.n
 
     if len(ground):
         xy = view.origin[:2] + ground_points[:2].T.astype(np.float64)
-        _put(radiance, ground, _hazy(_ground_radiance(scene.ground_shader, xy, shadow[ground], sun),
-                                     depth[ground] * ray_len[ground]))
+        distance = depth[ground] * ray_len[ground]
+        dirs = ground_points / distance
+        _put(radiance, ground, _hazy(_ground_radiance(scene, xy, ground_points, dirs, shadow[ground]),
+                                     distance, light))
     if len(on_part):
         z_world = part_points[2] + _F32(view.origin[2])
-        radiance_parts = _part_radiance(scene.part_table, scene.looks, hits, normal, z_world,
+        radiance_parts = _part_radiance(scene, hits, normal, part_points, z_world,
                                         lambda idx: _take(rays, on_part[idx]) / ray_len[on_part[idx]],
-                                        shadow[on_part], sun)
-        _put(radiance, on_part, _hazy(radiance_parts, depth[on_part] * ray_len[on_part]))
+                                        shadow[on_part])
+        _put(radiance, on_part, _hazy(radiance_parts, depth[on_part] * ray_len[on_part], light))
     return radiance
 
 
-def _apply_style(radiance: np.ndarray, style: CameraStyle, view: _View, rows: slice,
-                 rng: np.random.Generator) -> np.ndarray:
+# --- The lens and the sensor -------------------------------------------------------------
+
+METER_KEY = 0.115  # geometric mean luminance a frame is exposed to: the median of day frames of
+#                    this renderer (24 frames of 2 scenes), so day images keep their average exposure
+AE_STOPS = (-1.0, 1.0)  # range of the auto exposure in stops (our own estimate; see NIGHT_AMBIENT)
+AE_SUBSAMPLE = 7        # the meter reads every 7th pixel
+WB_DRIFT = 0.012        # per-frame white-balance drift, standard deviation of each gain
+NIGHT_EXPOSURE_S = 0.02  # s; night exposure time (by day ~1 ms: no visible blur)
+BLUR_DISTANCE = 10.0    # metres; the distance whose motion sets the night blur length
+FLARE_MARGIN = 0.26     # sin of 15 degrees: glare reaches a camera whose view the sun is this near
+FLARE_VEIL = np.array([1.0, 0.93, 0.8], np.float32)  # veiling glare radiance next to the sun
+# Ghosts of the sun along the line through the image centre: (position along the line from
+# the sun (1 = the centre), radius as a share of the width, radiance (3,)); our own estimate
+# of a few-element automotive lens.
+_GHOSTS = ((1.35, 0.02, (0.10, 0.16, 0.08)), (1.7, 0.045, (0.12, 0.06, 0.14)),
+           (2.1, 0.03, (0.16, 0.10, 0.04)), (2.6, 0.07, (0.05, 0.09, 0.12)))
+DROPS_MEAN = 5          # lens drops per rainy image (Poisson, plus one)
+
+
+def motion_blur_length(intrinsic, cam_to_world, ego_velocity, night: bool) -> float:
+    """Length in pixels of the horizontal smear of a night exposure: the image motion of
+    the scene at BLUR_DISTANCE while the camera moves at ego_velocity (3,) m/s global, over
+    NIGHT_EXPOSURE_S; the motion across a side camera's view smears, a forward camera's
+    (along its axis) barely does. 0 by day, whose exposures are too short to smear."""
+    if not night:
+        return 0.0
+    across = abs(float(np.asarray(cam_to_world)[:3, 0] @ np.asarray(ego_velocity, np.float64)))
+    return float(np.asarray(intrinsic)[0, 0]) * across * NIGHT_EXPOSURE_S / BLUR_DISTANCE
+
+
+def _auto_gain(radiance: np.ndarray) -> float:
+    """The auto exposure's gain for a frame of linear radiance (3,P) float32: METER_KEY over
+    the frame's geometric mean luminance (sampled, so a few lamps do not swing it), within
+    AE_STOPS."""
+    sample = radiance[:, ::AE_SUBSAMPLE]
+    luminance = _F32(0.2126) * sample[0] + _F32(0.7152) * sample[1] + _F32(0.0722) * sample[2]
+    mean_log = float(np.mean(np.log(np.maximum(luminance, _F32(1e-4)))))
+    return float(np.clip(METER_KEY / np.exp(mean_log), 2.0 ** AE_STOPS[0], 2.0 ** AE_STOPS[1]))
+
+
+def _motion_blur(image: np.ndarray, length: int) -> np.ndarray:
+    """Horizontal box blur of length pixels of a (3,H,W) float32 radiance image (edges
+    repeat), the smear of a pan during a long exposure."""
+    pad_lo, pad_hi = length // 2, length - length // 2
+    padded = np.concatenate([np.repeat(image[..., :1], pad_lo + 1, axis=2), image,
+                             np.repeat(image[..., -1:], pad_hi, axis=2)], axis=2)
+    total = np.cumsum(padded, axis=2, dtype=np.float64)
+    width = image.shape[2]
+    return ((total[..., length:length + width] - total[..., :width]) / length).astype(_F32)
+
+
+def _disc(image: np.ndarray, cu: float, cv: float, radius: float):
+    """The window (rows, columns slices) of a (3,H,W) image around a disc at (cu, cv) of
+    radius pixels, its soft mask (h,w) float32 in [0, 1] and the rows' offsets from the
+    centre in radii (h,1) float32; None when off the image."""
+    height, width = image.shape[1:]
+    u0, u1 = max(int(cu - radius - 1), 0), min(int(cu + radius + 2), width)
+    v0, v1 = max(int(cv - radius - 1), 0), min(int(cv + radius + 2), height)
+    if u0 >= u1 or v0 >= v1:
+        return None
+    du = np.arange(u0, u1, dtype=_F32) + _F32(0.5 - cu)
+    dv = np.arange(v0, v1, dtype=_F32) + _F32(0.5 - cv)
+    r = np.sqrt(du[None, :] ** 2 + dv[:, None] ** 2)
+    mask = np.clip((radius - r) / max(0.3 * radius, 1.0), 0.0, 1.0).astype(_F32)
+    return (slice(v0, v1), slice(u0, u1)), mask, dv[:, None] / _F32(radius)
+
+
+def _lens_drops(image: np.ndarray, rng: np.random.Generator) -> None:
+    """Rain drops on the lens of a (3,H,W) radiance image, in place: each a blurred,
+    brightened disc (a drop is a small lens showing the scene around it out of focus,
+    brighter towards its bottom, which images the sky), at positions drawn from rng."""
+    width = image.shape[2]
+    n = 1 + int(rng.poisson(DROPS_MEAN))
+    centre = rng.uniform(0.0, 1.0, (n, 2)) * image.shape[2:0:-1]
+    radius = rng.uniform(0.012, 0.04, n) * width
+    for (cu, cv), r in zip(centre, radius):
+        disc = _disc(image, cu, cv, r)
+        if disc is None:
+            continue
+        window, mask, dv = disc
+        around = _disc(image, cu, cv, 2.5 * r)[0]
+        blurred = image[(slice(None), *around)].mean(axis=(1, 2), dtype=np.float64).astype(_F32)
+        drop = blurred[:, None, None] * (_F32(1.1) + _F32(0.35) * dv)
+        patch = image[(slice(None), *window)]
+        patch += (drop - patch) * (_F32(0.9) * mask)
+
+
+def _lens_flare(image: np.ndarray, lighting: _Lighting, view: _View) -> None:
+    """Glare of the sun on a (3,H,W) radiance image, in place, when the sun is in or
+    within FLARE_MARGIN of the view and not behind cloud: a veil around the sun's image
+    point and ghosts along the line through the image centre."""
+    sky = lighting.sky
+    sun_cam = view.world_to_cam[:3, :3] @ lighting.sun.astype(np.float64)
+    if sky.sun_glow == 0.0 or lighting.sun[2] <= 0.0 or sun_cam[2] <= 0.0:
+        return
+    nearness = np.clip(1.0 + float(np.min(view.side_planes @ sun_cam)) / FLARE_MARGIN, 0.0, 1.0)
+    clear = 1.0 - 0.9 * float(sky.cloud_density(lighting.sun[:, None])[0]) if sky.cover > 0 else 1.0
+    strength = _F32(nearness * clear)
+    if strength <= 0.0:
+        return
+    height, width = image.shape[1:]
+    su, sv = (view.intrinsic @ sun_cam)[:2] / sun_cam[2]
+    du = np.arange(width, dtype=_F32) + _F32(0.5 - su)
+    dv = np.arange(height, dtype=_F32) + _F32(0.5 - sv)
+    r = np.sqrt(du[None, :] ** 2 + dv[:, None] ** 2) * _F32(1.0 / width)
+    veil = strength * (_F32(0.03) + np.exp(r * _F32(-8.0)))
+    image += FLARE_VEIL[:, None, None] * veil
+    cu, cv = view.intrinsic[0, 2], view.intrinsic[1, 2]
+    for along, size, colour in _GHOSTS:
+        disc = _disc(image, su + along * (cu - su), sv + along * (cv - sv), size * width)
+        if disc is not None:
+            window, mask, _ = disc
+            image[(slice(None), *window)] += np.array(colour, _F32)[:, None, None] * (strength * mask)
+
+
+def _apply_style(radiance: np.ndarray, gain: np.ndarray, noise_std: float, vignetting: float, view: _View,
+                 rows: slice, rng: np.random.Generator) -> np.ndarray:
     """Linear radiance (3,n) float32 of a band of rows (overwritten) -> its uint8 sRGB
-    (rows,W,3): exposure, white balance, vignetting, tone curve, sRGB encoding, sensor
-    noise."""
+    (rows,W,3): gain (3,) (exposure times white balance), vignetting, tone curve, sRGB
+    encoding, sensor noise of noise_std."""
     width, height = view.width, view.height
-    gain = EXPOSURE * 2.0 ** style.exposure_stops * np.asarray(style.white_balance, np.float64)
     u = ((np.arange(width) + 0.5 - view.intrinsic[0, 2]) / (width / 2)).astype(_F32)
     v = ((np.arange(rows.start, rows.stop) + 0.5 - view.intrinsic[1, 2]) / (width / 2)).astype(_F32)
-    darkening = _F32(style.vignetting / (1.0 + (height / width) ** 2))
+    darkening = _F32(vignetting / (1.0 + (height / width) ** 2))
     vignette = 1 - darkening * (u[None, :] * u[None, :] + v[:, None] * v[:, None])
     # The tone table's index of each value: exposed radiance times _LUT_STEPS (values past
     # the end of the table are white).
-    radiance *= (gain * _LUT_STEPS).astype(_F32)[:, None] * vignette.reshape(-1)
+    radiance *= (np.asarray(gain, np.float64) * _LUT_STEPS).astype(_F32)[:, None] * vignette.reshape(-1)
     level = np.take(_TONE_LUT, radiance.astype(np.intp).T, mode="clip")  # pixel-major, as the image
-    if style.noise_std > 0:
+    if noise_std > 0:
         noise = np.frombuffer(rng.bytes(level.size), np.uint8).reshape(level.shape)
-        level += np.take(_NORMAL_QUANTILES * _F32(255.0 * style.noise_std), noise)
+        level += np.take(_NORMAL_QUANTILES * _F32(255.0 * noise_std), noise)
     return np.clip(level, 0.0, 255.0, out=level).astype(np.uint8).reshape(-1, width, 3)
 
 
 def render_camera(parts: Parts, appearances, ground_shader, intrinsic, cam_to_world, width: int,
                   height: int, style: CameraStyle, sun_direction, n_objects: int,
                   rng: np.random.Generator, shade: bool = True,
-                  casts_shadow: np.ndarray | None = None) -> CameraRender:
+                  casts_shadow: np.ndarray | None = None, conditions: Conditions = Conditions(),
+                  motion_blur_px: float = 0.0, sky_seed: int = 0) -> CameraRender:
     """Render one camera image with its owner map and depth buffer.
 
     parts: every part of the frame, global frame (owner -1 = scenery); appearances:
@@ -888,10 +1365,17 @@ def render_camera(parts: Parts, appearances, ground_shader, intrinsic, cam_to_wo
     intrinsic (3,3) pinhole K; cam_to_world (4,4) camera (OpenCV axes) to global;
     width, height in pixels; style: the camera's `CameraStyle`; sun_direction (3,) towards
     the sun, global frame (normalised here); n_objects: length of the per-object counts
-    (owners outside [0, n_objects) are not counted); rng: draws the sensor noise only;
-    shade: False skips shading (image None) when only the coverage counts are needed;
-    casts_shadow (M,) bool: the parts that cast shadows (default: the objects', owner >= 0;
-    street clutter too where the caller says so).
+    (owners outside [0, n_objects) are not counted); rng: draws the per-frame white-balance
+    drift, the lens drops and the sensor noise; shade: False skips shading (image None)
+    when only the coverage counts are needed; casts_shadow (M,) bool: the parts that cast
+    shadows (default: the objects', owner >= 0; street clutter too where the caller says
+    so); conditions: night (no sun, emitting lamps, street-light pools, more noise) and
+    rain (overcast, wet road, drops on the lens); motion_blur_px: length in pixels of the
+    horizontal smear of the exposure (night only, where exposures are long); sky_seed:
+    seeds the scene's clouds (the same for all its cameras and frames).
+
+    The image is exposed from its own radiance (auto exposure, see `_auto_gain`) on top of
+    the style's fixed offset, as a real camera meters each frame.
     """
     view = _make_view(np.asarray(intrinsic, np.float64), np.asarray(cam_to_world, np.float64), width, height)
     sun = np.asarray(sun_direction, np.float64)
@@ -913,15 +1397,47 @@ def render_camera(parts: Parts, appearances, ground_shader, intrinsic, cam_to_wo
                             depth=depth.reshape(height, width), object_pixels=object_pixels,
                             visible_pixels=visible_pixels)
 
-    scene = _Scene(_part_table(parts, view), _looks(appearances, parts, n_objects), ground_shader, view, sun,
-                   _shadow_casters(parts, view, sun, casts_shadow))
-    image = np.empty((height, width, 3), np.uint8)
-    band = max(1, _BAND_PIXELS // width)
-    for top in range(0, height, band):
-        rows = slice(top, min(top + band, height))
-        pixels = slice(rows.start * width, rows.stop * width)
-        radiance = _shade(scene, depth[pixels], part_buf[pixels], ray_len[pixels], rows)
-        image[rows] = _apply_style(radiance, style, view, rows, rng)
+    image = _render_image(parts, appearances, ground_shader, view, style, sun, n_objects, rng, casts_shadow,
+                          conditions, motion_blur_px, sky_seed, depth, part_buf, ray_len)
     return CameraRender(image=image, owner_map=owner_map.reshape(height, width),
                         depth=depth.reshape(height, width), object_pixels=object_pixels,
                         visible_pixels=visible_pixels)
+
+
+def _render_image(parts, appearances, ground_shader, view: _View, style: CameraStyle, sun: np.ndarray,
+                  n_objects: int, rng: np.random.Generator, casts_shadow, conditions: Conditions,
+                  motion_blur_px: float, sky_seed: int, depth, part_buf, ray_len) -> np.ndarray:
+    """(H,W,3) uint8 image from the cast buffers (see `render_camera`): shade every band
+    into one radiance frame, add the lens effects, meter it, then expose and encode it."""
+    width, height = view.width, view.height
+    emission = _emission(parts) if conditions.night else None
+    lighting = _lighting(conditions, sun, sky_seed, parts, view, emission)
+    casters = None if not lighting.sun_light.any() else _shadow_casters(parts, view, sun, casts_shadow)
+    scene = _Scene(_part_table(parts, view), _looks(appearances, parts, n_objects), ground_shader, view, lighting,
+                   casters, None if emission is None else np.ascontiguousarray(emission.T))
+    radiance = np.empty((3, height * width), _F32)
+    band = max(1, _BAND_PIXELS // width)
+    for top in range(0, height, band):
+        pixels = slice(top * width, min(top + band, height) * width)
+        radiance[:, pixels] = _shade(scene, depth[pixels], part_buf[pixels], ray_len[pixels],
+                                     slice(top, min(top + band, height)))
+
+    frame = radiance.reshape(3, height, width)
+    if lighting.glints is not None:
+        road = ((part_buf < 0) & (depth < np.inf)).reshape(height, width)
+        lighting.glints.draw(frame, road, view, lighting.wetness * GLINT_FRESNEL)
+    if conditions.night and motion_blur_px >= 1.0:
+        frame[...] = _motion_blur(frame, int(round(motion_blur_px)))
+    _lens_flare(frame, lighting, view)
+    white_balance = np.asarray(style.white_balance, np.float64) * (1.0 + rng.normal(0.0, WB_DRIFT, 3))
+    if conditions.rain:
+        _lens_drops(frame, rng)
+    gain = EXPOSURE * 2.0 ** style.exposure_stops * _auto_gain(radiance) * white_balance
+    noise_std = style.noise_std * (NIGHT_NOISE_GAIN if conditions.night else 1.0)
+
+    image = np.empty((height, width, 3), np.uint8)
+    for top in range(0, height, band):
+        rows = slice(top, min(top + band, height))
+        image[rows] = _apply_style(radiance[:, rows.start * width:rows.stop * width], gain, noise_std,
+                                   style.vignetting, view, rows, rng)
+    return image

@@ -25,6 +25,12 @@ the devkit counts it (see :mod:`devkit_count`).
 Each scene draws from its own random generator seeded by ``(seed, scene index)``, so the
 same seed gives byte-identical files and a scene does not change when others are added.
 
+Each scene is at night or in rain at nuScenes's shares (:mod:`conditions`), drawn from a
+stream of its own: the description leads with nuScenes's words ("Night, rain, ..."), a night
+scene starts between civil dusk at its location and midnight local time, and a rainy scene's
+LiDAR loses more returns and gains raindrop returns (:func:`lidar.scan_lidar`) from streams of
+their own, so a dry day scene is the same as before scenes had conditions.
+
 The dataroot is built in a hidden staging folder beside ``out`` and published (renamed into
 place) only when complete, with a marker file, :data:`MARKER_NAME`, at its top. The marker
 is what lets a later run replace it: ``overwrite`` replaces only an empty folder or one that
@@ -53,10 +59,11 @@ from sianms_cli.nuscenes.writer import DatasetWriter, attribute_token, category_
 from sianms_cli.processes import worker_pool
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.synth.appearance import camera_style, sample_appearance
-from sianms_cli.synth.camera import render_camera
+from sianms_cli.synth.camera import motion_blur_length, render_camera
 from sianms_cli.synth.clutter import clutter_parts, road_user_boxes
+from sianms_cli.synth.conditions import Conditions, civil_dusk_hour, sample_conditions
 from sianms_cli.synth.devkit_count import boxes_in_sensor_frame, count_points_in_boxes
-from sianms_cli.synth.lidar import scan_lidar
+from sianms_cli.synth.lidar import scan_lidar, spray_behind
 from sianms_cli.synth.rig import (
     CAMERA_TRIGGER_OFFSET_US,
     FULL_IMAGE_SIZE,
@@ -358,6 +365,11 @@ def _scene_location(seed: int, index: int) -> str:
     return str(rng.choice(list(LOCATIONS), p=LOCATION_SHARES))
 
 
+def _scene_conditions(seed: int, index: int) -> Conditions:
+    """Night and rain of one scene, from their own stream (no other stream changes)."""
+    return sample_conditions(_scene_rng(seed, index, "conditions"))
+
+
 def _log_token(seed: int, name: str) -> str:
     return make_token("log", seed, name)
 
@@ -388,7 +400,8 @@ def _scene_record_stream(staging: Path, config: SynthConfig, index: int, name: s
     vehicle, rig, drive_side, utc = LOCATIONS[location]
     rig = _perturbed_rig(normalised_rig(rig), _scene_rng(seed, index, "calibration"))
     plan = plan_scene(_scene_rng(seed, index, "plan"), drive_side)
-    start = _scene_start(seed, index)
+    conditions = _scene_conditions(seed, index)
+    start = _scene_start(seed, index, location, conditions.night)
     logfile = f"{vehicle}-{start.strftime('%Y-%m-%d-%H-%M-%S')}{utc}"
     start_us = int(start.timestamp() * 1e6)
     log_token = _log_token(seed, name)
@@ -445,7 +458,7 @@ def _scene_record_stream(staging: Path, config: SynthConfig, index: int, name: s
     yield "scene", {
         "token": scene_token,
         "name": name,
-        "description": _describe(plan, location),
+        "description": _describe(plan, location, conditions),
         "log_token": log_token,
         "nbr_samples": n_keyframes,
         "first_sample_token": sample_tokens[0],
@@ -462,11 +475,20 @@ def _sweep_offset_us(k: int, j: int) -> int:
     return _keyframe_offset_us(k - 1) + int(round(j * 1e6 / LIDAR_HZ))
 
 
-def _scene_start(seed: int, index: int) -> dt.datetime:
-    """A plausible capture time in 2018, daytime (07:00-18:00)."""
+def _scene_start(seed: int, index: int, location: str, night: bool = False) -> dt.datetime:
+    """A plausible local capture time in 2018 (May to October): daytime (07:00-18:00), or for a
+    night scene between the end of civil twilight at ``location`` and midnight.
+
+    A night scene keeps the day drawn for it and takes its hour from a stream of its own, so
+    day scenes start exactly when they did before scenes had conditions."""
     rng = _scene_rng(seed, index, "time")
     day = dt.datetime(2018, 5, 1) + dt.timedelta(days=int(rng.integers(0, 180)))
-    return day + dt.timedelta(seconds=int(rng.integers(7 * 3600, 18 * 3600)))
+    seconds = int(rng.integers(7 * 3600, 18 * 3600))
+    if night:
+        utc_offset_hours = int(LOCATIONS[location][3][:3])  # "-0400" -> -4: Boston is on EDT until November
+        dusk = civil_dusk_hour(day.timetuple().tm_yday, location.split("-")[0], utc_offset_hours)
+        seconds = int(_scene_rng(seed, index, "night-time").integers(int(np.ceil(dusk * 3600)), 24 * 3600))
+    return day + dt.timedelta(seconds=seconds)
 
 
 def _perturbed_rig(rig: tuple[SensorCalibration, ...], rng: np.random.Generator) -> tuple[SensorCalibration, ...]:
@@ -484,11 +506,12 @@ def _perturbed_rig(rig: tuple[SensorCalibration, ...], rng: np.random.Generator)
     return tuple(perturbed)
 
 
-def _describe(plan: ScenePlan, location: str) -> str:
-    """Free text as nuScenes scene descriptions are: the place and what the ego does."""
+def _describe(plan: ScenePlan, location: str, conditions: Conditions = Conditions()) -> str:
+    """Free text as nuScenes scene descriptions are: the place and what the ego does, led by the
+    conditions as nuScenes writes them ("Night, rain, ..."; nothing on a dry day)."""
     street = plan.street
-    lanes = ("One lane", "Two lanes", "Three lanes")[street.section.lanes_per_direction - 1]
-    parts = [f"{lanes} each way" + (", median" if street.section.median > 0 else "")]
+    lanes = ("one lane", "two lanes", "three lanes")[street.section.lanes_per_direction - 1]
+    parts = conditions.words() + [f"{lanes} each way" + (", median" if street.section.median > 0 else "")]
     turns = [i for i in street.intersections if not i.through]
     if turns:
         side = "left" if float(plan.route.curvature_at(np.array([turns[0].s]))[0]) > 0 else "right"
@@ -508,7 +531,8 @@ def _describe(plan: ScenePlan, location: str) -> str:
     if plan.ego.speed == 0.0:
         parts.append("ego waiting")
     parts.append("busy" if plan.busyness > 0.7 else "light traffic")
-    return f"{', '.join(parts)}, {location.split('-')[0].capitalize()}"
+    text = f"{', '.join(parts)}, {location.split('-')[0].capitalize()}"
+    return text[0].upper() + text[1:]
 
 
 class _SceneSensing:
@@ -522,6 +546,7 @@ class _SceneSensing:
         self.logfile = logfile
         self.start_us = start_us
         self.calibration = {c.channel: c for c in rig}  # as written
+        self.conditions = _scene_conditions(config.seed, index)
         residual_rng = _scene_rng(config.seed, index, "calibration-residual")
         self.true_calibration = {c.channel: true_calibration(c, residual_rng) for c in rig}  # as sensed
         lidar = self.true_calibration[LIDAR_CHANNEL]
@@ -530,8 +555,9 @@ class _SceneSensing:
         rng = _scene_rng(config.seed, index, "appearance")
         agents = plan.agents
         self.appearances = [
-            sample_appearance(SHAPE_KIND[category], rng, rider=bool(rider))
-            for category, rider in zip(agents.category, agents.rider)
+            sample_appearance(SHAPE_KIND[category], rng, rider=bool(rider), size_wlh=_shape_size(size),
+                              workwear=category == "human.pedestrian.construction_worker")
+            for category, rider, size in zip(agents.category, agents.rider, agents.size)
         ]
         self.local_parts = concat_parts([
             _owned(object_parts(SHAPE_KIND[category], _shape_size(size), appearance), owner)
@@ -554,6 +580,11 @@ class _SceneSensing:
         # Separate streams, so the LiDAR (and num_lidar_pts) is the same with --sensors none.
         self.lidar_rng = _scene_rng(config.seed, index, "lidar-noise")
         self.sweep_rng = _scene_rng(config.seed, index, "lidar-sweeps")
+        # Rain's LiDAR effects draw from streams of their own, so dry scenes scan as before.
+        rain = self.conditions.rain
+        self.lidar_rain_rng = _scene_rng(config.seed, index, "lidar-rain") if rain else None
+        self.sweep_rain_rng = _scene_rng(config.seed, index, "lidar-rain-sweeps") if rain else None
+        self.is_vehicle = np.char.startswith(plan.agents.category.astype(str), "vehicle.")  # (N,) throw spray
         self.camera_rng = _scene_rng(config.seed, index, "camera-noise")
 
     def sense_keyframe(self, k: int, sample_token: str, calibration_tokens: dict, image_size) -> tuple[_Frame, dict]:
@@ -567,7 +598,7 @@ class _SceneSensing:
         near = distance < RENDER_RADIUS
 
         records = {}
-        scan = self._scan(t, center, yaw, near, self.lidar_rng)
+        scan = self._scan(t, center, yaw, near, self.lidar_rng, self.lidar_rain_rng)
         records[LIDAR_CHANNEL] = self._sample_data(LIDAR_CHANNEL, sample_token, timestamp, ego_to_global,
                                                    calibration_tokens, (0, 0), scan.points)
         rotation = yaw_to_quat(yaw)
@@ -602,23 +633,31 @@ class _SceneSensing:
         center, yaw, _ = self.plan.agents.pose(self.plan.route, t)
         ego_to_global = self._ego_to_global(t)
         near = np.hypot(*(center[:, :2] - ego_to_global[:2, 3]).T) < RENDER_RADIUS
-        scan = self._scan(t, center, yaw, near, self.sweep_rng)
+        scan = self._scan(t, center, yaw, near, self.sweep_rng, self.sweep_rain_rng)
         return self._sample_data(LIDAR_CHANNEL, sample_token, self.start_us + offset_us, ego_to_global,
                                  calibration_tokens, (0, 0), scan.points, sweep=j)
 
-    def _scan(self, t: float, center: np.ndarray, yaw: np.ndarray, near: np.ndarray, rng: np.random.Generator):
+    def _scan(self, t: float, center: np.ndarray, yaw: np.ndarray, near: np.ndarray, rng: np.random.Generator,
+              rain_rng: np.random.Generator | None):
         """One LiDAR sweep whose last column fires at ``t``: each column from the ego pose of
-        its own time, moving objects where they are then (their velocity over the sweep)."""
+        its own time, moving objects where they are then (their velocity over the sweep);
+        in rain when ``rain_rng`` is given (see :func:`lidar.scan_lidar`), with spray behind the
+        near vehicles."""
         seconds = lidar_column_seconds(AZIMUTH_STEPS)
         earlier, _, _ = self.plan.agents.pose(self.plan.route, t + seconds[0])
         velocity = (center - earlier) / -seconds[0]
         parts = self._parts_at(center, yaw, near)
         part_velocity = np.where((parts.owner >= 0)[:, None], velocity[np.maximum(parts.owner, 0)], 0.0)
         column_poses = self._ego_poses(t, seconds) @ self.lidar_to_ego
+        spray = None
+        if rain_rng is not None:
+            vehicles = near & self.is_vehicle
+            spray = spray_behind(center[vehicles], yaw[vehicles], self.plan.agents.size[vehicles],
+                                 np.hypot(*velocity[vehicles, :2].T))
         return scan_lidar(parts, self._ego_to_global(t) @ self.lidar_to_ego, rng,
                           ground_reflectivity=self.plan.street.ground_reflectivity, azimuth_steps=AZIMUTH_STEPS,
                           start_azimuth=self.start_azimuth, column_poses=column_poses, column_seconds=seconds,
-                          part_velocity=part_velocity)
+                          part_velocity=part_velocity, rain_rng=rain_rng, spray=spray)
 
     def _ego_poses(self, t: float, seconds: np.ndarray) -> np.ndarray:
         """(C,4,4) ego to global at times ``t + seconds`` (seconds in [-0.05, 0]): position and
@@ -673,10 +712,16 @@ class _SceneSensing:
         width, height = round(FULL_IMAGE_SIZE[0] * scale), round(FULL_IMAGE_SIZE[1] * scale)
         casts_shadow = np.concatenate([np.ones(len(parts.owner) - len(self.scenery_casts_shadow), bool),
                                        self.scenery_casts_shadow])
+        intrinsic = calibration.intrinsic(scale)
+        # The ego's planned speed along its heading (its acceleration is small over a scene).
+        ego_velocity = ego_to_global[:3, 0] * self.plan.ego.speed
         return render_camera(parts, self.appearances, self.plan.street.ground_albedo,
-                             calibration.intrinsic(scale), cam_to_global, width, height,
+                             intrinsic, cam_to_global, width, height,
                              self.styles[channel], self.sun, len(self.appearances), self.camera_rng,
-                             shade=self.config.sensors == "all", casts_shadow=casts_shadow)
+                             shade=self.config.sensors == "all", casts_shadow=casts_shadow,
+                             conditions=self.conditions, sky_seed=self.start_us,
+                             motion_blur_px=motion_blur_length(intrinsic, cam_to_global, ego_velocity,
+                                                               self.conditions.night))
 
     def _sample_data(self, channel, sample_token, timestamp, ego_to_global, calibration_tokens, image_size, data,
                      sweep: int = 0):

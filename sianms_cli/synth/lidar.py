@@ -260,11 +260,116 @@ def _keep_probability(cos_incidence, reflectivity, rng_m, max_range, dropout, gl
     return (1.0 - dropout) * (1.0 - grazing) * (1.0 - far) * (1.0 - weak) * ~specular
 
 
+# Rain (a moderate shower of a few mm/h; natural rain rarely exceeds 25 mm/h, Goodin et al.,
+# Electronics 8(1):89, 2019). The magnitudes are our own estimates, set from what studies of
+# spinning LiDARs in rain report: the number of returns falls with rain, most on wet pavement,
+# whose water film mirrors the beam away (Filgueira et al., Measurement 95, 2017, VLP-16), dark
+# surfaces lose more than bright ones, and raindrops bring sparse, weak, single returns within a
+# few metres of the sensor (Ouster OS1-32 field trial, pathvynt.com "Point cloud filtering for
+# rain, dust, and fog": drops at ~3 m, a few per cent of the rays of a sector in a downpour).
+RAIN_EXTINCTION_PER_M = 1.0e-3  # beam extinction by drops: ~1/km at a few mm/h, two ways over the range
+RAIN_BASE_LOSS = 0.01  # water on the sensor window scatters some pulses of every ray
+RAIN_WET_ROAD_LOSS = 0.06  # the road's film of water reflects the beam away
+RAIN_DARK_LOSS = 0.04  # wet dark surfaces (tyres, trim, glass, dark paint) at reflectivity 0
+RAIN_DARK_REFLECTIVITY = 0.15  # ... fading out at this reflectivity
+RAIN_DROP_SHARE = 0.003  # rays whose first return is a raindrop (~100 of a 34.7k-ray sweep)
+RAIN_DROP_RANGE_M = (1.0, 5.0)  # where drops return: near, where a drop fills enough of the beam
+RAIN_DROP_INTENSITY = (1, 8)  # weak: a drop fills a small part of the beam's footprint
+# Road spray: the tyres of moving vehicles throw up a cloud of droplets behind them that
+# LiDARs see as clutter trailing the vehicle (a known source of false detections in rain, e.g.
+# "Towards robust 3D object detection in rainy conditions", arXiv 2023); its size and density
+# are our own estimates.
+RAIN_SPRAY_LENGTH_M = 3.0  # the cloud trails this far behind the vehicle's rear
+RAIN_SPRAY_HEIGHT_M = 1.0  # from the road up to about the top of the wheels' arches and a little above
+RAIN_SPRAY_PER_M = 0.05  # chance per metre of cloud a ray crosses that it reports spray, at full speed
+RAIN_SPRAY_FULL_SPEED = 20.0  # m/s (72 km/h); the cloud thickens linearly with speed up to it
+
+
+@dataclass(frozen=True)
+class Spray:
+    """Spray clouds behind moving vehicles in rain: boxes (K cuboids, global frame, owner -1)
+    and per_metre (K,) the chance per metre crossed that a ray reports the cloud."""
+
+    boxes: Parts
+    per_metre: np.ndarray
+
+
+def spray_behind(center: np.ndarray, yaw: np.ndarray, size_wlh: np.ndarray, speed: np.ndarray) -> Spray:
+    """The spray cloud of each of V vehicles: center (V,3) global box centres, yaw (V,), size_wlh
+    (V,3) metres, speed (V,) m/s. A box as wide as the vehicle from the road up, behind its rear,
+    denser the faster the vehicle goes (none when parked)."""
+    behind = size_wlh[:, 1] / 2 + RAIN_SPRAY_LENGTH_M / 2
+    middle = center[:, :2] - behind[:, None] * np.column_stack([np.cos(yaw), np.sin(yaw)])
+    boxes = Parts(np.column_stack([middle, np.full(len(yaw), RAIN_SPRAY_HEIGHT_M / 2)]),
+                  np.column_stack([np.full(len(yaw), RAIN_SPRAY_LENGTH_M / 2), size_wlh[:, 0] / 2,
+                                   np.full(len(yaw), RAIN_SPRAY_HEIGHT_M / 2)]),
+                  yaw, np.full(len(yaw), -1), np.full(len(yaw), shapes.CONCRETE))
+    return Spray(boxes, RAIN_SPRAY_PER_M * np.clip(speed / RAIN_SPRAY_FULL_SPEED, 0.0, 1.0))
+
+
+def _spray_ranges(spray: Spray, reference: np.ndarray, origins: np.ndarray, dirs: np.ndarray, level: np.ndarray,
+                  inflate: float, start_azimuth: float, azimuth_steps: int, az_margin: float, el_margin: float,
+                  rng: np.random.Generator) -> np.ndarray:
+    """(R,) metres along each ray to the spray it reports (inf for none): a ray crossing a cloud
+    for d metres reports it with probability 1 - exp(-per_metre d), at a uniform depth within."""
+    boxes = spray.boxes
+    ray, box = candidate_pairs(boxes, reference[:3, 3], level, np.full(len(boxes), inflate), start_azimuth,
+                               azimuth_steps, az_margin, el_margin)
+    c, s = np.cos(boxes.yaw), np.sin(boxes.yaw)
+    (t_near, t_far, _), _ = _pair_slabs(ray, box, origins, dirs, boxes.center - reference[:3, 3],
+                                        boxes.half_size.astype(np.float32), c, s, None)
+    entry = np.maximum(t_near, np.float32(T_MIN)).astype(np.float64)
+    crossed = np.maximum(t_far - entry, 0.0)
+    reports = rng.uniform(size=len(ray)) < 1.0 - np.exp(-spray.per_metre[box] * crossed)
+    depth = entry + rng.uniform(size=len(ray)) * crossed
+    ranges = np.full(len(dirs), np.inf)
+    np.minimum.at(ranges, ray[reports], depth[reports])
+    return ranges
+
+
+def _rain_keep_probability(cos_incidence, reflectivity, rng_m, max_range, dropout, glass, ground):
+    """Probability that a return is reported in rain (see :func:`_keep_probability`): the
+    signal is dimmed by the drops along the way and back, and wet road and wet dark surfaces
+    lose more returns. Never above the dry probability."""
+    transmission = np.exp(-2.0 * RAIN_EXTINCTION_PER_M * rng_m)
+    dark = np.clip(1.0 - reflectivity / RAIN_DARK_REFLECTIVITY, 0.0, 1.0)
+    loss = RAIN_BASE_LOSS + np.where(ground, RAIN_WET_ROAD_LOSS, RAIN_DARK_LOSS * dark)
+    dimmed = _keep_probability(cos_incidence, reflectivity * transmission, rng_m, max_range, dropout, glass)
+    return dimmed * (1.0 - loss)
+
+
+def _add_raindrops(points: np.ndarray, owner: np.ndarray, returned: np.ndarray, origins_lidar: np.ndarray,
+                   dirs_lidar: np.ndarray, ray_range: np.ndarray, rng: np.random.Generator) -> None:
+    """Replace a few rays' returns by raindrop returns in place: points (R,5) LIDAR frame,
+    owner (R,), returned (R,); origins_lidar and dirs_lidar (R,3) each ray's origin and
+    direction in the LIDAR frame of the reference time; ray_range (R,) metres to the ray's
+    return (inf for none). A drop shows only in front of the surface the ray would have hit;
+    drop ranges crowd towards the sensor, where a drop is brightest."""
+    n = len(points)
+    ray = np.flatnonzero(rng.uniform(size=n) < RAIN_DROP_SHARE)
+    near, far = RAIN_DROP_RANGE_M
+    distance = np.full(n, np.inf)
+    distance[ray] = near + (far - near) * rng.uniform(size=len(ray)) ** 2
+    _set_clutter(points, owner, returned, origins_lidar, dirs_lidar, ray[distance[ray] < ray_range[ray]], distance,
+                 rng)
+
+
+def _set_clutter(points: np.ndarray, owner: np.ndarray, returned: np.ndarray, origins_lidar: np.ndarray,
+                 dirs_lidar: np.ndarray, ray: np.ndarray, distance: np.ndarray, rng: np.random.Generator) -> None:
+    """Make rays ``ray`` (K,) weak returns of water (drops, spray) at ``distance`` (R,) metres
+    along them, in place (arrays as :func:`_add_raindrops`)."""
+    points[ray, :3] = origins_lidar[ray] + distance[ray, None] * dirs_lidar[ray]
+    points[ray, 3] = rng.integers(RAIN_DROP_INTENSITY[0], RAIN_DROP_INTENSITY[1] + 1, len(ray))
+    owner[ray] = -1
+    returned[ray] = True
+
+
 def scan_lidar(parts: Parts, lidar_to_world, rng: np.random.Generator, ground_reflectivity,
                azimuth_steps: int = 1084, max_range: float = 100.0, range_noise_std: float = 0.02,
                dropout: float = 0.05, min_range: float = 0.05, start_azimuth: float | None = None,
                column_poses: np.ndarray | None = None, column_seconds: np.ndarray | None = None,
-               part_velocity: np.ndarray | None = None) -> LidarScan:
+               part_velocity: np.ndarray | None = None, rain_rng: np.random.Generator | None = None,
+               spray: Spray | None = None) -> LidarScan:
     """Cast one HDL-32E sweep against the ground plane z = 0 and all parts.
 
     parts: global frame, posed at the sweep's reference time; lidar_to_world (4,4) LIDAR
@@ -280,6 +385,11 @@ def scan_lidar(parts: Parts, lidar_to_world, rng: np.random.Generator, ground_re
     metres of Gaussian noise along the ray; dropout: base probability of a lost return
     (more are lost at grazing incidence, at long range and for weak returns). Intensity =
     255 * reflectivity * cos(incidence), with 5 % multiplicative noise, rounded.
+    rain_rng: when given, the sweep is taken in rain (see :func:`_rain_keep_probability`,
+    :func:`_add_raindrops`; returns dimmed by the drops), every rain effect drawn from this
+    generator, so ``rng``'s draws and a dry sweep are the same as without rain. spray: in
+    rain, the clouds behind moving vehicles (see :func:`spray_behind`; their motion over the
+    sweep is neglected, the cloud is a blur anyway).
     """
     reference = np.asarray(lidar_to_world, np.float64)
     if start_azimuth is None:
@@ -328,10 +438,16 @@ def scan_lidar(parts: Parts, lidar_to_world, rng: np.random.Generator, ground_re
     glass = np.zeros(len(idx), bool)
     side = np.abs(normals[on_part, 2]) < 0.5
     glass[on_part] = np.isin(parts.material[part_hit[on_part]], GLASS_MATERIALS) & side
-    keep = rng.uniform(size=len(idx)) < _keep_probability(cos_inc, reflect, t, max_range, dropout, glass)
+    keep_dry = _keep_probability(cos_inc, reflect, t, max_range, dropout, glass)
+    keep = rng.uniform(size=len(idx)) < keep_dry
     noisy = t + rng.normal(0.0, range_noise_std, len(idx))
     gain = np.exp(rng.normal(0.0, 0.05, len(idx)))
     keep &= noisy >= min_range
+    if rain_rng is not None:
+        # Kept with probability wet / dry among the dry survivors: wet overall, dry draws untouched.
+        keep_wet = _rain_keep_probability(cos_inc, reflect, t, max_range, dropout, glass, ground)
+        keep &= rain_rng.uniform(size=len(idx)) * keep_dry < keep_wet
+        reflect = reflect * np.exp(-2.0 * RAIN_EXTINCTION_PER_M * t)
 
     idx, t_noisy = idx[keep], noisy[keep]
     points = np.zeros((len(dirs), 5), np.float32)
@@ -342,4 +458,15 @@ def scan_lidar(parts: Parts, lidar_to_world, rng: np.random.Generator, ground_re
     owner[idx] = np.where(on_part[keep], parts.owner[part_hit[keep]] if len(parts) else -1, -1)
     returned = np.zeros(len(dirs), bool)
     returned[idx] = True
+    if rain_rng is not None:
+        ray_range = np.full(len(dirs), np.inf)
+        ray_range[idx] = t_noisy
+        if spray is not None and len(spray.boxes):
+            spray_range = _spray_ranges(spray, reference, origins, dirs, level, spread + 1e-3, start_azimuth,
+                                        azimuth_steps, az_margin, el_margin, rain_rng)
+            _set_clutter(points, owner, returned, origins @ reference[:3, :3], dirs @ reference[:3, :3],
+                         np.flatnonzero(spray_range < ray_range), spray_range, rain_rng)
+            ray_range = np.minimum(ray_range, spray_range)
+        _add_raindrops(points, owner, returned, origins @ reference[:3, :3], dirs @ reference[:3, :3], ray_range,
+                       rain_rng)
     return LidarScan(points=points, owner=owner, returned=returned)

@@ -10,7 +10,7 @@ from sianms_cli.synth.shapes import Builder, Parts
 
 _BUILDERS = {**vehicles.BUILDERS, **people.BUILDERS, **shapes.BUILDERS}
 
-KINDS = ("car", "truck", "bus", "pedestrian", "bicycle", "motorcycle", "barrier",
+KINDS = ("car", "truck", "bus", "trailer", "construction", "pedestrian", "bicycle", "motorcycle", "barrier",
          "traffic_cone", "building") + CLUTTER_KINDS
 
 

@@ -115,8 +115,8 @@ SHAPE_KIND = {
     "vehicle.car": "car",
     "vehicle.truck": "truck",
     "vehicle.bus.rigid": "bus",
-    "vehicle.trailer": "truck",  # a box body on wheels; its own look is appearance.py's to give
-    "vehicle.construction": "truck",
+    "vehicle.trailer": "trailer",
+    "vehicle.construction": "construction",
     "vehicle.motorcycle": "motorcycle",
     "vehicle.bicycle": "bicycle",
     "human.pedestrian.adult": "pedestrian",

@@ -32,8 +32,11 @@ def test_info_as_json_and_as_text(synthetic_dataroot, tmp_path):
     assert summary["image_boxes"]["boxes_3d"] == summary["annotations"]
     assert {"car_azimuth_within_50m", "car_heading_to_axis_within_50m", "ego_motion",
             "nuscenes_reference"} <= set(summary)
+    assert summary["scene_conditions"] == {"night": 0, "rain": 0, "night_and_rain": 0, "share_night": 0.0,
+                                           "share_rain": 0.0, "share_night_and_rain": 0.0}  # seed 3: two dry days
     text = runner.invoke(app, ["info", "--dataroot", dataroot, "--quiet"]).output
     assert "cars in the camera-overlap region" in text
+    assert "  scenes at night (description): 0 of 2, 0.0 % | nuScenes 11.6 % (" in text
     assert "LiDAR points per sweep: mean" in text
     assert "  image boxes (devkit 2-D export rule over 6 cameras):\n    per 3-D box: " in text
     assert " | nuScenes 1.215 (v1.0-trainval, 1,416,337 2-D from 1,166,187 3-D boxes" in text
@@ -81,3 +84,18 @@ def test_escaping_version_is_refused_by_every_command(tmp_path):
         assert result.exit_code == 2, (command, result.output)
         assert result.output.startswith("error: --version must be one folder name"), (command, result.output)
     assert [p.name for p in tmp_path.iterdir()] == []
+
+
+def test_info_draws_a_contact_sheet_of_the_conditions_it_has(synthetic_dataroot, tmp_path):
+    from PIL import Image
+
+    dataroot = str(synthetic_dataroot())
+    sheet = tmp_path / "sheet.png"
+    result = runner.invoke(app, ["info", "--dataroot", dataroot, "--quiet", "--max-sweeps", "0",
+                                 "--contact-sheet", str(sheet)])
+    assert result.exit_code == 0, result.output
+    assert f"contact sheet: {sheet} (day scene-" in result.output  # seed 3: two dry days, one row
+    with Image.open(sheet) as picture:
+        assert picture.width > 6 * 100 and picture.height < picture.width
+    again = runner.invoke(app, ["info", "--dataroot", dataroot, "--quiet", "--contact-sheet", str(sheet)])
+    assert (again.exit_code, again.output) == (2, f"error: {sheet} exists; pass --overwrite to replace it\n")
