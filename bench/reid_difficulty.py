@@ -211,7 +211,9 @@ def build_queries(detections: CacheDetections, db: NuScenesDB, matched_class: st
                 in_b = with_instance & (rig == r) & (camera == b)
                 asked, seen = np.flatnonzero(in_a), np.flatnonzero(in_b)
                 i, j = _equal_key_pairs(key[asked], key[seen])  # one detection per (instance, camera)
-                assert len(np.unique(i)) == len(i), "two detections of one instance in one camera"
+                if len(np.unique(i)) != len(i):
+                    raise SianmsError(f"the cache's detections hold two of one ground-truth instance in one "
+                                      f"{camera_rig.channels[a]} image: not a `sianms prepare` cache?")
                 asked, positive = asked[i], seen[j]
                 keep = heights[positive] >= min_height
                 asked, positive = asked[keep], positive[keep]

@@ -461,12 +461,12 @@ def scan_lidar(parts: Parts, lidar_to_world, rng: np.random.Generator, ground_re
     if rain_rng is not None:
         ray_range = np.full(len(dirs), np.inf)
         ray_range[idx] = t_noisy
+        origins_lidar, dirs_lidar = origins @ reference[:3, :3], dirs @ reference[:3, :3]
         if spray is not None and len(spray.boxes):
             spray_range = _spray_ranges(spray, reference, origins, dirs, level, spread + 1e-3, start_azimuth,
                                         azimuth_steps, az_margin, el_margin, rain_rng)
-            _set_clutter(points, owner, returned, origins @ reference[:3, :3], dirs @ reference[:3, :3],
+            _set_clutter(points, owner, returned, origins_lidar, dirs_lidar,
                          np.flatnonzero(spray_range < ray_range), spray_range, rain_rng)
             ray_range = np.minimum(ray_range, spray_range)
-        _add_raindrops(points, owner, returned, origins @ reference[:3, :3], dirs @ reference[:3, :3], ray_range,
-                       rain_rng)
+        _add_raindrops(points, owner, returned, origins_lidar, dirs_lidar, ray_range, rain_rng)
     return LidarScan(points=points, owner=owner, returned=returned)
