@@ -4,9 +4,9 @@ Each stage is the library call its own command makes, into a folder of its own u
 ``out``::
 
     out/demo.json        what was asked, each stage's state and wall time; "complete" once the report exists
-    out/data/            `sianms synth` (v1.0-mini)
-    out/cache-train/     `sianms prepare --split mini_train`
-    out/cache-val/       `sianms prepare --split mini_val`
+    out/data/            `sianms synth` (v1.0-mini, or v1.0-trainval for a larger study)
+    out/cache-train/     `sianms prepare --split mini_train` (train)
+    out/cache-val/       `sianms prepare --split mini_val` (val)
     out/siamese/         `sianms train siamese`
     out/fpointnet/       `sianms train fpointnet`
     out/eval/            `sianms eval` (every method, the NMS sweep)
@@ -23,6 +23,9 @@ minutes on two CPU cores, ``--quick`` 3 minutes (what it changes is listed in
 :data:`QUICK`). Both are far smaller than the paper's training (Frustum PointNets trains 201
 epochs on 1,024 points in the original): a demo shows the mechanics and the direction of the
 effects, and ``--scenes`` / ``--siamese-epochs`` / ``--fpointnet-epochs`` scale it up.
+v1.0-mini caps a demo at its ten scenes, two of them validation; ``version="v1.0-trainval"``
+takes any number of the devkit's trainval scene names, 150/850 of them validation (as
+nuScenes), for a validation set large enough to rank the methods.
 """
 
 from __future__ import annotations
@@ -39,13 +42,12 @@ from sianms_cli.progress import SILENT, Progress
 
 MARKER = "demo.json"
 KIND = "sianms-demo"
-VERSION = "v1.0-mini"
-TRAIN_SPLIT, VAL_SPLIT = "mini_train", "mini_val"
+VERSIONS = {"v1.0-mini": ("mini_train", "mini_val", 10), "v1.0-trainval": ("train", "val", 850)}  # splits, scenes
 FOLDERS = {"synth": "data", "prepare-train": "cache-train", "prepare-val": "cache-val", "siamese": "siamese",
            "fpointnet": "fpointnet", "eval": "eval", "report": "eval/report"}
 STAGES = tuple(FOLDERS)
 STAGE_FIELDS = {  # the resolved config's fields each stage's output depends on, besides the stages before it
-    "synth": ("seed", "scenes", "image_scale", "scene_seconds"), "prepare-train": (), "prepare-val": (),
+    "synth": ("seed", "version", "scenes", "image_scale", "scene_seconds"), "prepare-train": (), "prepare-val": (),
     "siamese": ("siamese_epochs", "siamese_lr"),
     "fpointnet": ("fpointnet_epochs", "fpointnet_batch_size", "num_points", "num_object_points"),
     "eval": ("nms_sweep",), "report": (),
@@ -56,7 +58,7 @@ STAGE_FIELDS = {  # the resolved config's fields each stage's output depends on,
 class DemoSettings:
     """Everything a demo's numbers depend on besides the seed (recorded in ``demo.json``)."""
 
-    scenes: int  # of v1.0-mini's ten; the first two hold one mini_train and one mini_val scene
+    scenes: int  # of the version's; v1.0-mini's first two hold one mini_train and one mini_val scene
     image_scale: float  # of nuScenes' 1600 x 900 images
     scene_seconds: float  # nuScenes scenes last 20 s (40 key frames)
     siamese_epochs: int
@@ -87,6 +89,7 @@ class DemoConfig:
 
     quick: bool = False
     seed: int = 0
+    version: str = "v1.0-mini"
     scenes: int | None = None
     siamese_epochs: int | None = None
     fpointnet_epochs: int | None = None
@@ -94,9 +97,12 @@ class DemoConfig:
     def __post_init__(self) -> None:
         if self.seed < 0:
             raise SianmsError(f"--seed must be at least 0, got {self.seed}")
-        if self.scenes is not None and not 2 <= self.scenes <= 10:
-            raise SianmsError(f"--scenes must be between 2 (one training and one validation scene) and 10 "
-                              f"(v1.0-mini), got {self.scenes}")
+        if self.version not in VERSIONS:
+            raise SianmsError(f"--version must be one of {', '.join(VERSIONS)}, got {self.version}")
+        most = VERSIONS[self.version][2]
+        if self.scenes is not None and not 2 <= self.scenes <= most:
+            raise SianmsError(f"--scenes must be between 2 (one training and one validation scene) and {most} "
+                              f"({self.version}), got {self.scenes}")
         for name in ("siamese_epochs", "fpointnet_epochs"):
             value = getattr(self, name)
             if value is not None and value < 1:
@@ -107,13 +113,18 @@ class DemoConfig:
         return "quick" if self.quick else "default"
 
     @property
+    def splits(self) -> tuple[str, str]:
+        """The (training, validation) split names of the version."""
+        return VERSIONS[self.version][:2]
+
+    @property
     def settings(self) -> DemoSettings:
         overrides = {name: getattr(self, name) for name in ("scenes", "siamese_epochs", "fpointnet_epochs")
                      if getattr(self, name) is not None}
         return replace(PROFILES[self.profile], **overrides)
 
     def resolved(self) -> dict[str, Any]:
-        return {"profile": self.profile, "seed": self.seed, **asdict(self.settings)}
+        return {"profile": self.profile, "seed": self.seed, "version": self.version, **asdict(self.settings)}
 
 
 @dataclass
@@ -135,17 +146,18 @@ def _synth(config: DemoConfig, out: Path, progress: Progress, workers: int) -> N
     from sianms_cli.synth.generate import SynthConfig, run
 
     settings = config.settings
-    run(SynthConfig(version=VERSION, scenes=settings.scenes, image_scale=settings.image_scale,
+    run(SynthConfig(version=config.version, scenes=settings.scenes, image_scale=settings.image_scale,
                     scene_seconds=settings.scene_seconds, seed=config.seed),
         out / FOLDERS["synth"], overwrite=True, progress=progress, workers=workers)
 
 
-def _prepare(split: str, stage: str) -> Callable[[DemoConfig, Path, Progress, int], None]:
+def _prepare(validation: bool, stage: str) -> Callable[[DemoConfig, Path, Progress, int], None]:
     def prepare(config: DemoConfig, out: Path, progress: Progress, workers: int) -> None:
         from sianms_cli.prepare.config import PrepareConfig
         from sianms_cli.prepare.job import run
 
-        run(PrepareConfig(dataroot=str(out / FOLDERS["synth"]), version=VERSION, split=split, seed=config.seed),
+        run(PrepareConfig(dataroot=str(out / FOLDERS["synth"]), version=config.version,
+                          split=config.splits[validation], seed=config.seed),
             out / FOLDERS[stage], progress=progress)
     return prepare
 
@@ -173,7 +185,7 @@ def _fpointnet(config: DemoConfig, out: Path, progress: Progress, workers: int) 
 def _eval(config: DemoConfig, out: Path, progress: Progress, workers: int) -> None:
     from sianms_cli.pipelines.job import EvalConfig, run
 
-    run(EvalConfig(dataroot=str(out / FOLDERS["synth"]), version=VERSION, split=VAL_SPLIT,
+    run(EvalConfig(dataroot=str(out / FOLDERS["synth"]), version=config.version, split=config.splits[1],
                    cache=str(out / FOLDERS["prepare-val"]), siamese=str(out / FOLDERS["siamese"]),
                    fpointnet=str(out / FOLDERS["fpointnet"]), nms_sweep=config.settings.nms_sweep, seed=config.seed),
         out / FOLDERS["eval"], progress=progress)
@@ -185,8 +197,8 @@ def _report(config: DemoConfig, out: Path, progress: Progress, workers: int) -> 
     run(ReportConfig(eval=str(out / FOLDERS["eval"])), out / FOLDERS["report"], overwrite=True, progress=progress)
 
 
-RUNNERS = {"synth": _synth, "prepare-train": _prepare(TRAIN_SPLIT, "prepare-train"),
-           "prepare-val": _prepare(VAL_SPLIT, "prepare-val"), "siamese": _siamese, "fpointnet": _fpointnet,
+RUNNERS = {"synth": _synth, "prepare-train": _prepare(False, "prepare-train"),
+           "prepare-val": _prepare(True, "prepare-val"), "siamese": _siamese, "fpointnet": _fpointnet,
            "eval": _eval, "report": _report}
 
 

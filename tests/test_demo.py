@@ -113,8 +113,12 @@ def test_profiles_and_overrides():
     assert demo.DEFAULT.min_box_height == pytest.approx(25.0 * demo.DEFAULT.image_scale)
     resolved = DemoConfig(quick=True, seed=4).resolved()
     assert resolved["profile"] == "quick" and resolved["seed"] == 4 and resolved["scenes"] == demo.QUICK.scenes
+    assert resolved["version"] == "v1.0-mini" and DemoConfig().splits == ("mini_train", "mini_val")
+    larger = DemoConfig(version="v1.0-trainval", scenes=40)
+    assert larger.splits == ("train", "val") and larger.settings.scenes == 40
     for kwargs, flag in (({"seed": -1}, "--seed"), ({"scenes": 1}, "--scenes"), ({"scenes": 11}, "--scenes"),
-                         ({"fpointnet_epochs": 0}, "--fpointnet-epochs")):
+                         ({"version": "v1.0-trainval", "scenes": 851}, "--scenes"),
+                         ({"version": "v1.0-test"}, "--version"), ({"fpointnet_epochs": 0}, "--fpointnet-epochs")):
         with pytest.raises(SianmsError, match=flag):
             DemoConfig(**kwargs)
 
@@ -135,3 +139,22 @@ def test_overwrite_keeps_the_stages_before_the_first_one_the_change_affects(tmp_
     assert sorted(p.name for p in out.iterdir()) == sorted(["demo.json", *(demo.FOLDERS[s] for s in kept)])
     assert demo.first_changed_stage(more_epochs, DemoConfig(seed=1).resolved()) == 0
     assert demo.first_changed_stage(more_epochs, more_epochs) == len(demo.STAGES)
+
+
+def test_a_trainval_demo_synthesises_trainval_names_and_prepares_its_train_and_val_splits(tmp_path, monkeypatch):
+    def stop(*args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setitem(demo.PROFILES, "quick", TINY)
+    monkeypatch.setitem(demo.RUNNERS, "siamese", stop)
+    out = tmp_path / "demo"
+    with pytest.raises(KeyboardInterrupt):
+        run(DemoConfig(quick=True, version="v1.0-trainval", scenes=3), out)
+    assert (out / "data" / "v1.0-trainval").is_dir()
+    train = json.loads((out / "cache-train" / "manifest.json").read_text())["config"]
+    val = json.loads((out / "cache-val" / "manifest.json").read_text())["config"]
+    assert (train["version"], train["split"], val["version"], val["split"]) == ("v1.0-trainval", "train",
+                                                                                 "v1.0-trainval", "val")
+    assert (len(train["split_scenes"]), len(val["split_scenes"])) == (2, 1)  # round(3 x 150 / 850) = 1
+    record = json.loads((out / "demo.json").read_text())
+    assert record["config"]["version"] == "v1.0-trainval" and not record["complete"]

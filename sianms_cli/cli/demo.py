@@ -14,10 +14,13 @@ from sianms_cli.cli._app import ProgressBar, command
 @command("demo")
 def demo_cli(
     out: Path = typer.Option(Path("sianms-demo"), help="Demo folder (a rerun resumes the stages not yet done)."),
-    quick: bool = typer.Option(False, "--quick", help="About 3 minutes instead of 15: 2 scenes, 4 siamese and 1 "
-                                                      "F-PointNets epoch, 128 points per frustum."),
+    quick: bool = typer.Option(False, "--quick", help="About 3 minutes instead of 15: 2 scenes, 4 siamese and 4 "
+                                                      "F-PointNets epochs of batch 8, 128 points per frustum."),
     seed: int = typer.Option(0, help="Seed of the world, the 2-D detector, both trainings and eval."),
-    scenes: Optional[int] = typer.Option(None, help="v1.0-mini scenes to generate, 2-10 [default: the profile's]."),
+    version: str = typer.Option("v1.0-mini", help="v1.0-mini (10 scenes, 2 of them validation) or v1.0-trainval "
+                                                  "(up to 850, 150/850 of them validation: a larger study)."),
+    scenes: Optional[int] = typer.Option(None, help="Scenes to generate: 2-10 (v1.0-mini), 2-850 (v1.0-trainval) "
+                                                    "[default: the profile's]."),
     siamese_epochs: Optional[int] = typer.Option(None, help="Siamese epochs [default: the profile's]."),
     fpointnet_epochs: Optional[int] = typer.Option(None, help="Frustum PointNets epochs [default: the profile's]."),
     threads: Optional[int] = typer.Option(None, help="CPU threads for torch [default: torch's choice]."),
@@ -38,7 +41,7 @@ def demo_cli(
         import torch
 
         torch.set_num_threads(max(1, threads))
-    config = DemoConfig(quick=quick, seed=seed, scenes=scenes, siamese_epochs=siamese_epochs,
+    config = DemoConfig(quick=quick, seed=seed, version=version, scenes=scenes, siamese_epochs=siamese_epochs,
                         fpointnet_epochs=fpointnet_epochs)
 
     def announce(stage: str, event: str, seconds: float | None) -> None:
