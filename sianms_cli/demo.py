@@ -34,7 +34,7 @@ import shutil
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 from sianms_cli.errors import OutputExistsError, SianmsError
 from sianms_cli.io import make_folder, read_json, write_json
@@ -42,7 +42,17 @@ from sianms_cli.progress import SILENT, Progress
 
 MARKER = "demo.json"
 KIND = "sianms-demo"
-VERSIONS = {"v1.0-mini": ("mini_train", "mini_val", 10), "v1.0-trainval": ("train", "val", 850)}  # splits, scenes
+
+
+class DemoVersion(NamedTuple):
+    """A dataset version a demo can synthesise: its training and validation splits and how many scene names it has."""
+
+    train_split: str
+    val_split: str
+    max_scenes: int
+
+
+VERSIONS = {"v1.0-mini": DemoVersion("mini_train", "mini_val", 10), "v1.0-trainval": DemoVersion("train", "val", 850)}
 FOLDERS = {"synth": "data", "prepare-train": "cache-train", "prepare-val": "cache-val", "siamese": "siamese",
            "fpointnet": "fpointnet", "eval": "eval", "report": "eval/report"}
 STAGES = tuple(FOLDERS)
@@ -99,7 +109,7 @@ class DemoConfig:
             raise SianmsError(f"--seed must be at least 0, got {self.seed}")
         if self.version not in VERSIONS:
             raise SianmsError(f"--version must be one of {', '.join(VERSIONS)}, got {self.version}")
-        most = VERSIONS[self.version][2]
+        most = VERSIONS[self.version].max_scenes
         if self.scenes is not None and not 2 <= self.scenes <= most:
             raise SianmsError(f"--scenes must be between 2 (one training and one validation scene) and {most} "
                               f"({self.version}), got {self.scenes}")
@@ -115,7 +125,8 @@ class DemoConfig:
     @property
     def splits(self) -> tuple[str, str]:
         """The (training, validation) split names of the version."""
-        return VERSIONS[self.version][:2]
+        version = VERSIONS[self.version]
+        return version.train_split, version.val_split
 
     @property
     def settings(self) -> DemoSettings:
@@ -151,13 +162,14 @@ def _synth(config: DemoConfig, out: Path, progress: Progress, workers: int) -> N
         out / FOLDERS["synth"], overwrite=True, progress=progress, workers=workers)
 
 
-def _prepare(validation: bool, stage: str) -> Callable[[DemoConfig, Path, Progress, int], None]:
+def _prepare(stage: str) -> Callable[[DemoConfig, Path, Progress, int], None]:
     def prepare(config: DemoConfig, out: Path, progress: Progress, workers: int) -> None:
         from sianms_cli.prepare.config import PrepareConfig
         from sianms_cli.prepare.job import run
 
+        train, val = config.splits
         run(PrepareConfig(dataroot=str(out / FOLDERS["synth"]), version=config.version,
-                          split=config.splits[validation], seed=config.seed),
+                          split=val if stage == "prepare-val" else train, seed=config.seed),
             out / FOLDERS[stage], progress=progress)
     return prepare
 
@@ -197,8 +209,8 @@ def _report(config: DemoConfig, out: Path, progress: Progress, workers: int) -> 
     run(ReportConfig(eval=str(out / FOLDERS["eval"])), out / FOLDERS["report"], overwrite=True, progress=progress)
 
 
-RUNNERS = {"synth": _synth, "prepare-train": _prepare(False, "prepare-train"),
-           "prepare-val": _prepare(True, "prepare-val"), "siamese": _siamese, "fpointnet": _fpointnet,
+RUNNERS = {"synth": _synth, "prepare-train": _prepare("prepare-train"),
+           "prepare-val": _prepare("prepare-val"), "siamese": _siamese, "fpointnet": _fpointnet,
            "eval": _eval, "report": _report}
 
 
