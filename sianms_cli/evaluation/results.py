@@ -69,6 +69,9 @@ _VECTORS = {"translation": 3, "size": 3, "rotation": 4, "velocity": 2}
 _ATTRIBUTE_CODES = {"": NO_ATTRIBUTE, **ATTRIBUTE}
 _GETTERS = tuple(itemgetter(key) for key in BOX_KEYS)
 _CHUNK_CHARS = 1 << 23  # characters read at a time
+SCAN_MIN_BYTES = 64 << 20
+"""Files at least this large are first read by the compiled scanner
+(:mod:`~sianms_cli.evaluation.results_scan`); below, loading it costs more than it saves."""
 _BATCH_BOXES = 1 << 13  # boxes decoded, then converted to arrays, at a time
 
 
@@ -127,17 +130,23 @@ def validate_results(results: Results, max_boxes_per_sample: int = MAX_BOXES_PER
     if len(boxes) and (samples.min() < 0 or samples.max() >= len(results.sample_tokens)
                        or (np.diff(samples) < 0).any()):
         raise ValueError("box 'sample' indices must index sample_tokens and be grouped in its order")
-    if len(set(results.sample_tokens)) != len(results.sample_tokens):
-        seen: set[str] = set()
-        duplicate = next(t for t in results.sample_tokens if t in seen or seen.add(t))
-        raise ResultsFormatError(path, "sample listed twice", token=duplicate, field="results")
-    bounds = check_box_counts(results, max_boxes_per_sample)
-    bad = _first_bad_row(boxes)
+    bounds = check_samples(results, max_boxes_per_sample)
+    bad = first_bad_row(boxes)
     if bad is not None:
         row, name, message = bad
         sample = int(samples[row])
         raise ResultsFormatError(path, message, token=results.sample_tokens[sample], field=name,
                                  box_index=row - int(bounds[sample]))
+
+
+def check_samples(results: Results, max_boxes_per_sample: int) -> np.ndarray:
+    """Raise ResultsFormatError for the first sample listed twice, then for the first with more
+    boxes than allowed; returns :meth:`Results.sample_bounds`."""
+    if len(set(results.sample_tokens)) != len(results.sample_tokens):
+        seen: set[str] = set()
+        duplicate = next(t for t in results.sample_tokens if t in seen or seen.add(t))
+        raise ResultsFormatError(results.path, "sample listed twice", token=duplicate, field="results")
+    return check_box_counts(results, max_boxes_per_sample)
 
 
 def check_box_counts(results: Results, max_boxes_per_sample: int) -> np.ndarray:
@@ -152,7 +161,7 @@ def check_box_counts(results: Results, max_boxes_per_sample: int) -> np.ndarray:
     return bounds
 
 
-def _first_bad_row(boxes: np.ndarray, chunk: int = 1 << 18) -> tuple[int, str, str] | None:
+def first_bad_row(boxes: np.ndarray, chunk: int = 1 << 18) -> tuple[int, str, str] | None:
     """(row, field, message) of the first box breaking a value rule, first failing field.
 
     Checked in chunks of rows (views), so the temporaries stay small.
@@ -213,6 +222,12 @@ def read_results(path: str | Path, *, max_boxes_per_sample: int = MAX_BOXES_PER_
     path = Path(path)
     if not path.is_file():
         raise DataFormatError(path, "results file not found")
+    if path.stat().st_size >= SCAN_MIN_BYTES:
+        counted = _CountedProgress(progress)
+        scanned = _read_scanned(path, max_boxes_per_sample, counted)
+        if scanned is not None:
+            return scanned
+        progress = counted.skipping()  # the exact reader reads the file again from its start
     tokens: list[str] = []
     seen: set[str] = set()
     batch = _Batch(path)
@@ -245,6 +260,50 @@ def read_results(path: str | Path, *, max_boxes_per_sample: int = MAX_BOXES_PER_
     _check_meta(path, meta)
     # Values were checked batch by batch, counts and duplicates sample by sample.
     return Results(tuple(tokens), np.concatenate(parts), meta, str(path), validated=True)
+
+
+def _read_scanned(path: Path, max_boxes_per_sample: int, progress: Callable[[int], None]) -> Results | None:
+    """The file read by the compiled scanner, or None when it is not in the plain form or
+    breaks a rule: the exact reader then names the problem."""
+    from sianms_cli.evaluation.results_scan import read_plain_results  # loads numba
+
+    plain = read_plain_results(path, progress)  # every box's values checked
+    if plain is None:
+        return None
+    results = Results(plain.sample_tokens, plain.boxes, plain.meta, str(path), validated=True)
+    try:
+        _check_meta(path, plain.meta)
+        check_samples(results, max_boxes_per_sample)
+    except DataFormatError:
+        return None
+    return results
+
+
+class _CountedProgress:
+    """A progress callback that counts what it reported, so a second reading of the same file
+    can skip that much and the total stays the file's size."""
+
+    def __init__(self, progress: Callable[[int], None] | None) -> None:
+        self.progress = progress
+        self.reported = 0
+
+    def __call__(self, count: int) -> None:
+        self.reported += count
+        if self.progress is not None:
+            self.progress(count)
+
+    def skipping(self) -> Callable[[int], None] | None:
+        if self.progress is None:
+            return None
+        already, report = self.reported, self.progress
+
+        def report_beyond(count: int) -> None:
+            nonlocal already
+            beyond = max(0, count - already)
+            already = max(0, already - count)
+            if beyond:
+                report(beyond)
+        return report_beyond
 
 
 def _sample_problem(token: str, boxes: Any, seen: set[str], max_boxes: int) -> str | None:
@@ -291,7 +350,7 @@ class _Batch:
         if table is None:
             self._diagnose()
             raise AssertionError(f"{self.path}: fast check rejected boxes the exact check accepts")
-        bad = _first_bad_row(table)
+        bad = first_bad_row(table)
         if bad is not None:
             row, name, message = bad
             token, box_index = self._locate(row)
@@ -356,7 +415,7 @@ class _Batch:
                 if problem is None:
                     single = _Batch(self.path)
                     single.add(0, token, [box])
-                    bad = _first_bad_row(single._convert())
+                    bad = first_bad_row(single._convert())
                     problem = None if bad is None else bad[1:]
                 if problem is not None:
                     raise ResultsFormatError(self.path, problem[1], token=token, field=problem[0],

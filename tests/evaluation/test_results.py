@@ -24,6 +24,15 @@ from sianms_cli.evaluation.results import (
 TOKENS = ("sample_a", "sample_b", "sample_c")
 
 
+@pytest.fixture(autouse=True, params=["exact", "scanned"])
+def reader(request, monkeypatch):
+    """Every test reads through both paths: the exact reader, and the compiled scanner first
+    (which hands any file it does not accept to the exact reader)."""
+    if request.param == "scanned":
+        monkeypatch.setattr(results_module, "SCAN_MIN_BYTES", 0)
+    return request.param
+
+
 def box(token: str, **fields) -> dict:
     return {"sample_token": token, "translation": [1.0, 2.0, 0.5], "size": [1.9, 4.5, 1.6],
             "rotation": [1.0, 0.0, 0.0, 0.0], "velocity": [0.5, -0.25], "detection_name": "car",
