@@ -47,6 +47,7 @@ def exact(path):
 
 def assert_same(plain, expected):
     assert plain is not None
+    assert plain.boxes.flags.writeable
     assert plain.sample_tokens == expected.sample_tokens
     assert plain.boxes.tobytes() == expected.boxes.tobytes()
     assert plain.meta == expected.meta
@@ -164,3 +165,10 @@ def test_progress_of_a_scanned_file_adds_up_to_its_size(tmp_path, monkeypatch):
     seen = []
     read_results(path, progress=seen.append)
     assert sum(seen) == path.stat().st_size and all(count > 0 for count in seen)
+
+
+@pytest.mark.parametrize("results", ["{}", '{"a": [], "b": []}'])
+def test_files_without_boxes(tmp_path, results):
+    path = tmp_path / "r.json"
+    path.write_text('{"meta": {"use_camera": true}, "results": ' + results + "}")
+    assert_same(read_plain_results(path), exact(path))
