@@ -12,8 +12,10 @@ folder, one process, and prints from ``eval.json`` and the scenes' timings:
 - the share of the scenes stage spent in the networks, the reference the rest is measured
   against in the same run.
 
-Usage: python bench/eval.py [--scenes 3] [--threads 1]
+Usage: python bench/eval.py [--scenes 3] [--threads 1] [--device cuda]
        python bench/eval.py --dataroot D --split S --cache C --siamese R1 --fpointnet R2
+
+``--device cuda`` runs the evaluation's networks on the GPU (the inputs are made the same way).
 """
 
 from __future__ import annotations
@@ -54,6 +56,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scenes", type=int, default=3, help="scenes of the generated mini (without --dataroot)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
+    parser.add_argument("--device", default="cpu", help="torch device of the evaluation's networks (cpu, cuda, cuda:N)")
     for name in ("dataroot", "split", "cache", "siamese", "fpointnet"):
         parser.add_argument(f"--{name}")
     parser.add_argument("--version", default="v1.0-mini")
@@ -64,7 +67,7 @@ def main() -> None:
         inputs = ({name: getattr(args, name) for name in ("dataroot", "split", "cache", "siamese", "fpointnet")}
                   if args.dataroot else make_inputs(folder, args.scenes))
         started = time.perf_counter()
-        result = run(EvalConfig(version=args.version, **inputs), folder / "eval")
+        result = run(EvalConfig(version=args.version, device=args.device, **inputs), folder / "eval")
         total = time.perf_counter() - started
         stages = dict.fromkeys(STAGES, 0.0)
         samples = 0
@@ -74,7 +77,7 @@ def main() -> None:
             for stage in STAGES:
                 stages[stage] += timings[stage]
         finish = result.manifest["timings"]
-    print(f"{samples} samples, torch threads {args.threads}, {torch.__version__}")
+    print(f"{samples} samples, device {args.device}, torch threads {args.threads}, {torch.__version__}")
     print(f"{'stage':<34}{'ms/sample':>12}")
     for stage, seconds in stages.items():
         print(f"{'scenes: ' + stage:<34}{1000 * seconds / samples:>12.1f}")
