@@ -172,3 +172,19 @@ def test_files_without_boxes(tmp_path, results):
     path = tmp_path / "r.json"
     path.write_text('{"meta": {"use_camera": true}, "results": ' + results + "}")
     assert_same(read_plain_results(path), exact(path))
+
+
+def test_progress_adds_up_when_the_exact_reader_takes_over(tmp_path, monkeypatch):
+    """A NaN velocity (valid, but not the plain form) stops the scanner late in the file; the
+    exact reader then reads it all, and the progress it reports again is not counted twice."""
+    document = random_document(samples=50, seed=4)
+    last = next(token for token in reversed(document["results"]) if document["results"][token])
+    document["results"][last][-1]["velocity"] = [float("nan"), 0.0]
+    path = tmp_path / "r.json"
+    path.write_text(json.dumps(document))
+    monkeypatch.setattr(scan_module, "BOXES_PER_CHUNK", 12)
+    monkeypatch.setattr(results_module, "SCAN_MIN_BYTES", 0)
+    seen = []
+    results = read_results(path, progress=seen.append)
+    assert read_plain_results(path) is None and np.isnan(results.boxes["velocity"][-1, 0])
+    assert sum(seen) == path.stat().st_size
