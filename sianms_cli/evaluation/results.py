@@ -31,7 +31,9 @@ Whether every sample of a split is present is checked against the split by the e
 
 Files are read in chunks and decoded one sample at a time
 (:class:`~sianms_cli.json_stream.JsonStream`), so memory stays near the size of the boxes as
-arrays (about 120 bytes per box), not of the decoded JSON.
+arrays (about 120 bytes per box), not of the decoded JSON. Files of ``SCAN_MIN_BYTES`` and
+more are first read by the compiled scanner of :mod:`~sianms_cli.evaluation.results_scan`
+(3x faster at 1.2 M boxes); whatever it does not accept is read here, which names the problem.
 """
 
 from __future__ import annotations

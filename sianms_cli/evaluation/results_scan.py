@@ -427,7 +427,8 @@ def _literal_end(buf, i, a, b, c, d):
 
 
 class PlainResults(NamedTuple):
-    """A plain results file's content, not yet checked against the format's value rules."""
+    """A plain results file's content: every box's values checked, the samples (duplicates,
+    counts per sample) and the meta not."""
 
     sample_tokens: tuple[str, ...]
     boxes: np.ndarray
