@@ -109,7 +109,7 @@ def test_a_wrong_guess_of_the_middle_boundary_is_caught(tmp_path, small_chunks):
     path = tmp_path / "r.json"
     path.write_text(json.dumps(random_document(tokens=tokens)))
     middle = scan_module._member_boundary_after(np.fromfile(path, np.uint8), path.stat().st_size // 2)
-    assert path.read_bytes()[middle - 2:middle] == b"}]" and middle > 0
+    assert path.read_bytes()[middle - 2:middle + 2] == b"}] 0"  # inside a token: a wrong guess
     assert_same(read_plain_results(path), exact(path))
 
 
