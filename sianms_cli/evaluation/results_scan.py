@@ -53,11 +53,19 @@ _MAX_VIEW_OFFSET = (1 << 31) - 1 - 2 * MAX_NUMBER_BYTES * NUMBERS_PER_BOX  # vie
 
 _DONE, _MORE, _REFUSED = 0, 1, 2
 
-_STRING_BYTE = np.zeros(256, dtype=np.uint8)
-"""Within a string: 0 for a plain character, 1 for the closing quote, 2 for what the plain
-form refuses (control characters, the backslash of an escape, non-ASCII bytes)."""
-_STRING_BYTE[:32] = _STRING_BYTE[128:] = _STRING_BYTE[92] = 2
-_STRING_BYTE[34] = 1
+# The bytes of JSON's grammar, as the scanner compares them.
+_QUOTE, _COMMA, _COLON, _MINUS, _PLUS, _POINT = b'",:-+.'
+_OPEN_OBJECT, _CLOSE_OBJECT, _OPEN_LIST, _CLOSE_LIST = b"{}[]"
+_ZERO, _ONE, _NINE, _EXPONENT, _EXPONENT_UPPER = b"019eE"
+_SPACE, _NEWLINE, _RETURN, _TAB = b" \n\r\t"
+_TRUE, _NULL, _FALSE = tuple(b"true"), tuple(b"null"), tuple(b"false")
+
+_PLAIN, _STRING_END, _NOT_PLAIN = 0, 1, 2
+_STRING_BYTE = np.full(256, _PLAIN, dtype=np.uint8)
+"""What each byte is within a string: plain, the closing quote, or what the plain form refuses
+(control characters, the backslash of an escape, non-ASCII bytes)."""
+_STRING_BYTE[:32] = _STRING_BYTE[128:] = _STRING_BYTE[ord("\\")] = _NOT_PLAIN
+_STRING_BYTE[ord('"')] = _STRING_END
 
 
 def _table(names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
@@ -99,7 +107,7 @@ def _at(buf, i):
 
 @numba.njit(cache=True)
 def _space(buf, i):
-    while i < len(buf) and (buf[i] == 32 or buf[i] == 10 or buf[i] == 13 or buf[i] == 9):
+    while i < len(buf) and (buf[i] == _SPACE or buf[i] == _NEWLINE or buf[i] == _RETURN or buf[i] == _TAB):
         i += 1
     return i
 
@@ -108,20 +116,20 @@ def _space(buf, i):
 def _string_end(buf, i):
     """Index after the string opening at ``i``; -1 unless it is plain ASCII (no escape, no
     control character)."""
-    if _at(buf, i) != 34:
+    if _at(buf, i) != _QUOTE:
         return -1
     i += 1
     while i < len(buf):
         kind = _STRING_BYTE[buf[i]]
-        if kind != 0:
-            return i + 1 if kind == 1 else -1
+        if kind != _PLAIN:
+            return i + 1 if kind == _STRING_END else -1
         i += 1
     return -1
 
 
 @numba.njit(cache=True)
 def _digits_end(buf, i):
-    while 48 <= _at(buf, i) <= 57:
+    while _ZERO <= _at(buf, i) <= _NINE:
         i += 1
     return i
 
@@ -130,22 +138,22 @@ def _digits_end(buf, i):
 def _number_end(buf, i):
     """Index after the JSON number starting at ``i``; -1 if there is none or it is too long."""
     start = i
-    if _at(buf, i) == 45:
+    if _at(buf, i) == _MINUS:
         i += 1
-    if _at(buf, i) == 48:
+    if _at(buf, i) == _ZERO:
         i += 1
-    elif 49 <= _at(buf, i) <= 57:
+    elif _ONE <= _at(buf, i) <= _NINE:
         i = _digits_end(buf, i)
     else:
         return -1
-    if _at(buf, i) == 46:
+    if _at(buf, i) == _POINT:
         end = _digits_end(buf, i + 1)
         if end == i + 1:
             return -1
         i = end
-    if _at(buf, i) == 101 or _at(buf, i) == 69:
+    if _at(buf, i) == _EXPONENT or _at(buf, i) == _EXPONENT_UPPER:
         i += 1
-        if _at(buf, i) == 43 or _at(buf, i) == 45:
+        if _at(buf, i) == _PLUS or _at(buf, i) == _MINUS:
             i += 1
         end = _digits_end(buf, i)
         if end == i:
@@ -166,10 +174,10 @@ def _find(buf, start, end, table, lengths):
 @numba.njit(cache=True)
 def _quoted(buf, i, table, lengths):
     """Row of ``table`` whose text, in quotes, starts at ``i``, or -1."""
-    if _at(buf, i) != 34:
+    if _at(buf, i) != _QUOTE:
         return -1
     for row in range(len(lengths)):
-        if _at(buf, i + 1 + lengths[row]) == 34 and _same(buf, i + 1, table[row], lengths[row]):
+        if _at(buf, i + 1 + lengths[row]) == _QUOTE and _same(buf, i + 1, table[row], lengths[row]):
             return row
     return -1
 
@@ -190,7 +198,7 @@ def _box_end(buf, i, base, box, token_start, token_end, keys, key_lengths, class
 
     Writes the box's class, attribute and the views of its 13 numbers (into ``buf[base:]``).
     """
-    if _at(buf, i) != 123:
+    if _at(buf, i) != _OPEN_OBJECT:
         return -1
     i = _space(buf, i + 1)
     seen = 0
@@ -200,14 +208,14 @@ def _box_end(buf, i, base, box, token_start, token_end, keys, key_lengths, class
             return -1
         seen |= 1 << key
         i = _space(buf, i + key_lengths[key] + 2)
-        if _at(buf, i) != 58:
+        if _at(buf, i) != _COLON:
             return -1
         i = _space(buf, i + 1)
         first, width = slots[key, 0], slots[key, 1]
         if first >= 0:
             vector = key != _SCORE
             if vector:
-                if _at(buf, i) != 91:
+                if _at(buf, i) != _OPEN_LIST:
                     return -1
                 i = _space(buf, i + 1)
             for k in range(width):
@@ -215,16 +223,16 @@ def _box_end(buf, i, base, box, token_start, token_end, keys, key_lengths, class
                 if end < 0:
                     return -1
                 # JSON's -0 is the integer 0 (Python reads 0, not -0.0): view it without its sign
-                negative_zero = end - i == 2 and buf[i] == 45 and buf[i + 1] == 48
+                negative_zero = end - i == 2 and buf[i] == _MINUS and buf[i + 1] == _ZERO
                 _write_view(number_views, box, first + k, buf, i + negative_zero, end, base)
                 i = _space(buf, end)
                 if vector:
-                    if _at(buf, i) != (44 if k < width - 1 else 93):
+                    if _at(buf, i) != (_COMMA if k < width - 1 else _CLOSE_LIST):
                         return -1
                     i = _space(buf, i + 1)
         elif key == _SAMPLE_TOKEN:
             length = token_end - token_start
-            if (_at(buf, i) != 34 or _at(buf, i + 1 + length) != 34
+            if (_at(buf, i) != _QUOTE or _at(buf, i + 1 + length) != _QUOTE
                     or not _same(buf, i + 1, buf[token_start:token_end], length)):
                 return -1
             i = _space(buf, i + length + 2)
@@ -240,9 +248,9 @@ def _box_end(buf, i, base, box, token_start, token_end, keys, key_lengths, class
                 return -1
             box_attribute[box] = NO_ATTRIBUTE if code == len(attribute_lengths) - 1 else code
             i = _space(buf, i + attribute_lengths[code] + 2)
-        if _at(buf, i) == 125:
+        if _at(buf, i) == _CLOSE_OBJECT:
             return i + 1 if seen == (1 << len(key_lengths)) - 1 else -1
-        if _at(buf, i) != 44:
+        if _at(buf, i) != _COMMA:
             return -1
         i = _space(buf, i + 1)
 
@@ -284,16 +292,16 @@ def _scan_members(buf, i, opening, stop, keys, key_lengths, classes, class_lengt
     base = i  # the numbers' views point into buf[base:]
     resume, resume_opening = i, opening
     if opening:
-        if _at(buf, i) != 123:
+        if _at(buf, i) != _OPEN_OBJECT:
             return _REFUSED, i, opening, 0, 0
         i = _space(buf, i + 1)
-        if _at(buf, i) == 125:
+        if _at(buf, i) == _CLOSE_OBJECT:
             return _DONE, i + 1, False, 0, 0
     else:
         i = _space(buf, i)
-        if _at(buf, i) == 125:
+        if _at(buf, i) == _CLOSE_OBJECT:
             return _DONE, i + 1, False, 0, 0
-        if _at(buf, i) != 44:
+        if _at(buf, i) != _COMMA:
             return _REFUSED, i, opening, 0, 0
         i = _space(buf, i + 1)
     while True:
@@ -304,14 +312,14 @@ def _scan_members(buf, i, opening, stop, keys, key_lengths, classes, class_lengt
             return _REFUSED, i, opening, 0, 0
         token_start = i + 1
         i = _space(buf, token_end)
-        if _at(buf, i) != 58:
+        if _at(buf, i) != _COLON:
             return _REFUSED, i, opening, 0, 0
         i = _space(buf, i + 1)
-        if _at(buf, i) != 91:
+        if _at(buf, i) != _OPEN_LIST:
             return _REFUSED, i, opening, 0, 0
         i = _space(buf, i + 1)
         member_boxes = 0
-        if _at(buf, i) == 93:
+        if _at(buf, i) == _CLOSE_LIST:
             i += 1
         else:
             while True:
@@ -327,10 +335,10 @@ def _scan_members(buf, i, opening, stop, keys, key_lengths, classes, class_lengt
                     return _REFUSED, i, opening, 0, 0
                 member_boxes += 1
                 i = _space(buf, i)
-                if _at(buf, i) == 93:
+                if _at(buf, i) == _CLOSE_LIST:
                     i += 1
                     break
-                if _at(buf, i) != 44:
+                if _at(buf, i) != _COMMA:
                     return _REFUSED, i, opening, 0, 0
                 i = _space(buf, i + 1)
         sample_keys[samples, 0], sample_keys[samples, 1] = token_start, token_end - 1
@@ -340,9 +348,9 @@ def _scan_members(buf, i, opening, stop, keys, key_lengths, classes, class_lengt
         if i >= stop:
             return _MORE, resume, resume_opening, samples, boxes
         i = _space(buf, i)
-        if _at(buf, i) == 125:
+        if _at(buf, i) == _CLOSE_OBJECT:
             return _DONE, i + 1, False, samples, boxes
-        if _at(buf, i) != 44:
+        if _at(buf, i) != _COMMA:
             return _REFUSED, i, opening, 0, 0
         i = _space(buf, i + 1)
 
@@ -354,7 +362,7 @@ def _scan_head(buf, names, lengths):
     ``"meta"`` and ``"results"``, quotes included."""
     refused = (-1, -1, -1)
     i = _space(buf, 0)
-    if _at(buf, i) != 123:
+    if _at(buf, i) != _OPEN_OBJECT:
         return refused
     i = _space(buf, i + 1)
     meta_start = meta_end = -1
@@ -363,7 +371,7 @@ def _scan_head(buf, names, lengths):
         if end < 0 or _find(buf, i, end, names, lengths) != expected:
             return refused
         i = _space(buf, end)
-        if _at(buf, i) != 58:
+        if _at(buf, i) != _COLON:
             return refused
         i = _space(buf, i + 1)
         if expected == 1:
@@ -374,7 +382,7 @@ def _scan_head(buf, names, lengths):
             return refused
         meta_end = i
         i = _space(buf, i)
-        if _at(buf, i) != 44:
+        if _at(buf, i) != _COMMA:
             return refused
         i = _space(buf, i + 1)
     return refused
@@ -383,44 +391,46 @@ def _scan_head(buf, names, lengths):
 @numba.njit(cache=True)
 def _flat_object_end(buf, i):
     """Index after an object of plain strings, numbers, true, false or null at ``i``, or -1."""
-    if _at(buf, i) != 123:
+    if _at(buf, i) != _OPEN_OBJECT:
         return -1
     i = _space(buf, i + 1)
-    if _at(buf, i) == 125:
+    if _at(buf, i) == _CLOSE_OBJECT:
         return i + 1
     while True:
         i = _string_end(buf, i)
         if i < 0:
             return -1
         i = _space(buf, i)
-        if _at(buf, i) != 58:
+        if _at(buf, i) != _COLON:
             return -1
         i = _space(buf, i + 1)
-        if _at(buf, i) == 34:
-            i = _string_end(buf, i)
-        elif _literal_end(buf, i, 116, 114, 117, 101) > 0:  # true
-            i += 4
-        elif _literal_end(buf, i, 110, 117, 108, 108) > 0:  # null
-            i += 4
-        elif _literal_end(buf, i, 102, 97, 108, 115) > 0 and _at(buf, i + 4) == 101:  # false
-            i += 5
-        else:
-            i = _number_end(buf, i)
+        end = _string_end(buf, i)
+        if end < 0:
+            end = _literal_end(buf, i, _TRUE)
+        if end < 0:
+            end = _literal_end(buf, i, _NULL)
+        if end < 0:
+            end = _literal_end(buf, i, _FALSE)
+        if end < 0:
+            end = _number_end(buf, i)
+        i = end
         if i < 0:
             return -1
         i = _space(buf, i)
-        if _at(buf, i) == 125:
+        if _at(buf, i) == _CLOSE_OBJECT:
             return i + 1
-        if _at(buf, i) != 44:
+        if _at(buf, i) != _COMMA:
             return -1
         i = _space(buf, i + 1)
 
 
 @numba.njit(cache=True)
-def _literal_end(buf, i, a, b, c, d):
-    """i + 4 if the four bytes a, b, c, d start at ``i``, else -1."""
-    same = _at(buf, i) == a and _at(buf, i + 1) == b and _at(buf, i + 2) == c and _at(buf, i + 3) == d
-    return i + 4 if same else -1
+def _literal_end(buf, i, word):
+    """Index after ``word`` (a tuple of bytes) if it starts at ``i``, else -1."""
+    for k in range(len(word)):
+        if _at(buf, i + k) != word[k]:
+            return -1
+    return i + len(word)
 
 
 # --------------------------------------------------------------------------- reading
@@ -567,7 +577,7 @@ def _joined(tables: list[np.ndarray]) -> np.ndarray:
 def _only_closing_brace_after(buf: np.ndarray, position: int) -> bool:
     """Whether only the top-level ``}`` and whitespace follow ``position``."""
     position = _space(buf, position)
-    return position < len(buf) and buf[position] == 125 and _space(buf, position + 1) == len(buf)
+    return position < len(buf) and buf[position] == _CLOSE_OBJECT and _space(buf, position + 1) == len(buf)
 
 
 def _empty_chunk() -> _Chunk:
