@@ -457,12 +457,14 @@ def read_plain_results(path: str | Path, progress: Callable[[int], None] | None 
     with open(path, "rb") as file:
         if file.seek(0, 2) == 0:
             return None
-        with mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ) as mapped:
-            buf = np.frombuffer(mapped, dtype=np.uint8)
-            try:
-                return _read(buf, mapped, progress)
-            finally:
-                del buf  # the map cannot close while an array exports its buffer
+        mapped = mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ)
+    try:
+        return _read(np.frombuffer(mapped, dtype=np.uint8), mapped, progress)
+    finally:
+        try:
+            mapped.close()
+        except BufferError:  # an exception's traceback still holds views; the map goes with them
+            pass
 
 
 def _read(buf: np.ndarray, mapped: mmap.mmap, progress: Callable[[int], None] | None) -> PlainResults | None:

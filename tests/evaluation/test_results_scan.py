@@ -188,3 +188,16 @@ def test_progress_adds_up_when_the_exact_reader_takes_over(tmp_path, monkeypatch
     results = read_results(path, progress=seen.append)
     assert read_plain_results(path) is None and np.isnan(results.boxes["velocity"][-1, 0])
     assert sum(seen) == path.stat().st_size
+
+
+def test_an_unexpected_error_surfaces_as_itself(tmp_path, monkeypatch):
+    """Not as the map's 'cannot close exported pointers' (the traceback holds views of it)."""
+    path = tmp_path / "r.json"
+    path.write_text(json.dumps(random_document(samples=5)))
+
+    def failing(buf, *args, **kwargs):
+        view = buf[10:20]  # a view of the map, alive in the traceback
+        raise RuntimeError(f"scanner failed after {view.nbytes} bytes")
+    monkeypatch.setattr(scan_module, "_read_part", failing)
+    with pytest.raises(RuntimeError, match="scanner failed"):
+        read_plain_results(path)
