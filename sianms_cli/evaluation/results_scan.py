@@ -37,19 +37,18 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from sianms_cli.evaluation.boxes import ATTRIBUTE_NAMES, DETECTION_NAMES, NO_ATTRIBUTE, empty_boxes
-from sianms_cli.evaluation.results import first_bad_row
+from sianms_cli.evaluation.results import BOX_KEYS, first_bad_row
 
-BOX_KEYS = ("sample_token", "translation", "size", "rotation", "velocity", "detection_score",
-            "detection_name", "attribute_name")
-"""The keys a box must have; a key's index is its code in the scanner."""
-_SAMPLE_TOKEN, _SCORE, _NAME = 0, 5, 6  # the other string key is attribute_name (7)
-_NUMBER_SLOTS = ((0, 3), (3, 3), (6, 4), (10, 2), (12, 1))
-"""(first slot, count) of keys 1-5 among a box's 13 numbers: translation, size, rotation,
-velocity, score."""
-NUMBERS_PER_BOX = 13
+_NUMBERS = {"translation": (0, 3), "size": (3, 3), "rotation": (6, 4), "velocity": (10, 2),
+            "detection_score": (12, 1)}
+"""(first slot, count) of each numeric key among a box's numbers."""
+NUMBERS_PER_BOX = sum(count for _, count in _NUMBERS.values())
+_SAMPLE_TOKEN, _SCORE, _NAME = map(BOX_KEYS.index, ("sample_token", "detection_score", "detection_name"))
+"""Codes of keys in the scanner: a key's index in BOX_KEYS (the other string key is
+attribute_name)."""
 MAX_NUMBER_BYTES = 40
 BOXES_PER_CHUNK = 1 << 16
-_MAX_VIEW_OFFSET = (1 << 31) - 1 - 2 * MAX_NUMBER_BYTES * NUMBERS_PER_BOX  # views hold int32 offsets
+_MAX_VIEW_OFFSET = (1 << 31) - 1  # views hold int32 offsets
 
 _DONE, _MORE, _REFUSED = 0, 1, 2
 
@@ -81,7 +80,7 @@ _KEYS = _table(BOX_KEYS)
 _CLASSES = _table(DETECTION_NAMES)
 _ATTRIBUTES = _table(ATTRIBUTE_NAMES + ("",))  # the last row codes as NO_ATTRIBUTE
 _HEAD = _table(('"meta"', '"results"'))
-_SLOTS = np.array([[-1, 0]] + [list(slot) for slot in _NUMBER_SLOTS] + [[-1, 0], [-1, 0]], dtype=np.int64)
+_SLOTS = np.array([_NUMBERS.get(key, (-1, 0)) for key in BOX_KEYS], dtype=np.int64)  # (-1, 0): a string key
 
 
 class _Chunk(NamedTuple):
@@ -220,7 +219,7 @@ def _box_end(buf, i, base, box, token_start, token_end, keys, key_lengths, class
                 i = _space(buf, i + 1)
             for k in range(width):
                 end = _number_end(buf, i)
-                if end < 0:
+                if end < 0 or end - base > _MAX_VIEW_OFFSET:
                     return -1
                 # JSON's -0 is the integer 0 (Python reads 0, not -0.0): view it without its sign
                 negative_zero = end - i == 2 and buf[i] == _MINUS and buf[i + 1] == _ZERO
@@ -324,7 +323,7 @@ def _scan_members(buf, i, opening, stop, keys, key_lengths, classes, class_lengt
         else:
             while True:
                 box = boxes + member_boxes
-                if box == len(box_sample) or i - base > _MAX_VIEW_OFFSET:
+                if box == len(box_sample) or i - base > _MAX_VIEW_OFFSET // 2:  # a new chunk, a new base
                     return _MORE, resume, resume_opening, samples, boxes
                 box_sample[box] = samples
                 box_attribute[box] = NO_ATTRIBUTE
@@ -601,9 +600,10 @@ def _box_table(chunk: _Chunk, first_sample: int, text: np.ndarray) -> np.ndarray
     table["sample"] = chunk.box_sample + first_sample
     table["label"] = chunk.box_label
     table["attribute"] = chunk.box_attribute
-    for name, (first, width) in zip(("translation", "size", "rotation", "velocity"), _NUMBER_SLOTS):
+    for name in ("translation", "size", "rotation", "velocity"):
+        first, width = _NUMBERS[name]
         table[name] = numbers[:, first:first + width]
-    table["score"] = numbers[:, _NUMBER_SLOTS[-1][0]]
+    table["score"] = numbers[:, _NUMBERS["detection_score"][0]]
     return table
 
 
