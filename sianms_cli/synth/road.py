@@ -28,6 +28,10 @@ CAR_PARK_BORDER = 0.6
 """Metres of verge between the pavement and a car park's asphalt: room for the hedges and
 fences that stand at the back of the pavement."""
 BAY_START = CAR_PARK_BORDER + 0.5  # where the bays begin, from the pavement's outer edge
+AISLE_WIDTH = 6.0
+"""Metres of driving aisle between two rows of bays (6-7 m is common practice for 90-degree
+bays; one-way aisles of angled bays are narrower, one width keeps the layout simple)."""
+ROW_PITCH = BAY_DEPTH + AISLE_WIDTH  # from one row of bays to the next, across the car park
 
 SURFACE_TINT = np.array([[1.0, 1.0, 1.04], [1.0, 0.98, 0.94], [0.55, 1.0, 0.35], [1.0, 0.92, 0.82]])
 """Colour tint of asphalt, pavement, grass and plaza, multiplied by a per-point grey level."""
@@ -235,14 +239,20 @@ class Intersection:
 class CarPark:
     """Open parking beside the road, behind the pavement: route arc lengths [s0, s1] on
     ``side`` (+1 left, -1 right), ``depth`` metres deep from the pavement's outer edge (the
-    first ``CAR_PARK_BORDER`` of it verge, then asphalt), one
-    row of bays at ``angle`` to the direction of increasing ``s`` (pi/2: perpendicular)."""
+    first ``CAR_PARK_BORDER`` of it verge, then asphalt), ``rows`` rows of bays ``ROW_PITCH``
+    apart at ``angle`` to the direction of increasing ``s`` (pi/2: perpendicular)."""
 
     side: int
     s0: float
     s1: float
     depth: float
     angle: float
+    rows: int = 1
+
+    def in_bay_row(self, across: np.ndarray) -> np.ndarray:
+        """Whether distances ``across`` from the pavement's outer edge fall inside a row of bays."""
+        into = across - BAY_START
+        return (into > 0.0) & (np.mod(into, ROW_PITCH) < BAY_DEPTH) & (into < (self.rows - 1) * ROW_PITCH + BAY_DEPTH)
 
     @property
     def bay_spacing(self) -> float:
@@ -356,8 +366,10 @@ class Street:
         outer = self.section.pavement_outer
         for park in self.car_parks:
             across = park.side * d - outer
-            slanted = s - park.s0 - across / np.tan(park.angle)
-            lines |= ((s > park.s0) & (s < park.s1) & (across > BAY_START) & (across < BAY_START + BAY_DEPTH)
+            # Every row repeats the first one's lines, so its bays lie straight behind them.
+            in_row = np.mod(across - BAY_START, ROW_PITCH) + BAY_START
+            slanted = s - park.s0 - in_row / np.tan(park.angle)
+            lines |= ((s > park.s0) & (s < park.s1) & park.in_bay_row(across)
                       & (_wrap(slanted, park.bay_spacing) < 0.12))
         return lines
 

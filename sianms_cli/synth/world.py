@@ -42,9 +42,13 @@ from sianms_cli.synth.manoeuvres import (
 )
 from sianms_cli.synth.parking import bay_poses, choose_car_parks
 from sianms_cli.synth.road import (
+    AISLE_WIDTH,
+    BAY_DEPTH,
+    BAY_START,
     LANE_WIDTH,
     PARKING_WIDTH,
     PAVEMENT_WIDTH,
+    ROW_PITCH,
     CrossSection,
     Intersection,
     Route,
@@ -94,6 +98,18 @@ CONSTRUCTION_VEHICLE_SHARE = 0.75
 """Taper ends with a construction vehicle parked beyond them: trainval holds 0.43 construction
 vehicles per keyframe (14,671 / 34,149, §9.1-1) and the paper's supplement shows they rarely
 move (§9.5-4), so they stand at the sites; the share is set against that figure."""
+
+KERB_PARKED_CATEGORIES = ("vehicle.car", "vehicle.truck", "vehicle.motorcycle", "vehicle.trailer",
+                          "vehicle.construction")
+KERB_PARKED_SHARES = (0.44, 0.15, 0.07, 0.25, 0.09)
+"""What parks in a parking lane. Trailers left without their tractor and construction plant
+between jobs stand at the kerb, as the nuScenes supplement shows both classes mostly parked
+(Fig. 8; §9.5-4); their shares, taken from the cars', are set against trainval's 0.73 trailers
+and 0.43 construction vehicles per keyframe (§9.1-1): 0.16 and none before gave 0.43-0.51 and
+0.13-0.24 (the plant at roadworks only) on the README's two measured sets, so the trailers' share
+grew by 0.73 / 0.47 and the kerb makes up the plant's mean shortfall of 0.25 per keyframe. The
+long trailers took kerb slots from the motorcycles (0.34 -> 0.22 per keyframe on seed 11's 40
+scenes against trainval's 0.37), whose share grew from 0.027 to 0.07."""
 
 # (w, l, h) mean and std per category, nuScenes trainval (reference §9.3).
 SIZE_STATS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
@@ -173,6 +189,15 @@ STANDING_GAP = 120.0  # between people standing at the back of a pavement
 MOVING_SPEED = 0.2  # m/s: below this a road user counts as standing still
 DEPARTURE_STOP = 120.0  # metres from a junction where cars leaving along a crossing street stop
 WALKER_QUEUE_SPACING = 1.2  # metres between walkers waiting at a junction (2-sigma body length + gap)
+AISLE_WALKER_GAP = 60.0
+"""Mean gap between people walking along one line of a car park's aisle (two lines per aisle,
+one each way): people walk to and from their cars there, 10-30 m from the road, where the
+cameras' views overlap (our estimate; nuScenes publishes no pedestrian positions). 30 m put
+pedestrians at 8.1 per keyframe on seed 11's 40 scenes against trainval's 6.45."""
+BAYS_TAKEN = (0.15, 0.3)
+"""Share of a car park's bays taken: 0.15 + 0.3 x busyness (15-45 %). Set against trainval's
+14.45 cars per keyframe once car parks had up to three rows: the single row's 25-65 % then put
+16.4 cars per keyframe on seed 11's 40 scenes and 19.9 on the mini of seed 2026."""
 
 
 @dataclass
@@ -433,6 +458,7 @@ def plan_scene(rng: np.random.Generator, drive_side: int) -> ScenePlan:
     _place_car_park_cars(agents, rng, street, busyness)
     _place_cyclists(agents, rng, street, busyness)
     _place_pedestrians(agents, rng, street, busyness)
+    _place_car_park_walkers(agents, rng, street, busyness)
     crossing += _place_crossing_traffic(agents, rng, street, busyness)
     _turn_off_route(agents, rng, street, crossing)
     buildings = _place_buildings(rng, street, driveways)
@@ -527,11 +553,7 @@ def _vehicle_category(rng: np.random.Generator, moving: bool, parked: bool = Fal
         return str(rng.choice(["vehicle.car", "vehicle.truck", "vehicle.bus.rigid", "vehicle.motorcycle"],
                               p=[0.773, 0.16, 0.04, 0.027]))
     if parked:
-        # At the kerb, also trailers left without their tractor (trainval 0.73 per keyframe,
-        # §9.1-1; the paper's supplement Fig. 8 shows them mostly parked), their share set
-        # against that figure, taken from the cars'.
-        return str(rng.choice(["vehicle.car", "vehicle.truck", "vehicle.motorcycle", "vehicle.trailer"],
-                              p=[0.663, 0.15, 0.027, 0.16]))
+        return str(rng.choice(KERB_PARKED_CATEGORIES, p=KERB_PARKED_SHARES))
     return str(rng.choice(["vehicle.car", "vehicle.truck", "vehicle.motorcycle"], p=[0.803, 0.17, 0.027]))
 
 
@@ -622,14 +644,14 @@ def _walk_range(position: float, direction: int, spans: np.ndarray) -> tuple[flo
 
 
 def _place_car_park_cars(agents: AgentList, rng, street: Street, busyness: float) -> None:
-    """Cars in the car parks' bays, 25-65 % of the bays taken, a quarter reversed in. A car
-    fits its bay: width up to 2.25 m (bays 2.6 m apart), length up to 5.2 m."""
+    """Cars in the car parks' bays, ``BAYS_TAKEN`` of them, a quarter reversed in. A car fits
+    its bay: width up to 2.25 m (bays 2.6 m apart), length up to 5.2 m."""
     for park in street.car_parks:
         for s, d, yaw in zip(*bay_poses(park, street.section.pavement_outer)):
             size = sample_size("vehicle.car", rng)
             size[0] = min(size[0], 2.25)
             size[1] = min(size[1], 5.2)
-            taken = rng.random() < 0.25 + 0.4 * busyness
+            taken = rng.random() < BAYS_TAKEN[0] + BAYS_TAKEN[1] * busyness
             reversed_in = rng.random() < 0.25
             if taken:
                 agents.add("vehicle.car", size, p0=float(s), offset=float(d),
@@ -698,6 +720,26 @@ def _place_pedestrians(agents: AgentList, rng, street: Street, busyness: float) 
             size = sample_size(category, rng)
             if not _in_spans(position, spans, margin=1.0):
                 agents.add(category, size, p0=position, offset=offset, yaw_offset=float(rng.uniform(-np.pi, np.pi)))
+
+
+def _place_car_park_walkers(agents: AgentList, rng, street: Street, busyness: float) -> None:
+    """People walking along the aisles between a car park's rows of bays, one line each way a
+    metre either side of the aisle's middle; a walker stops at the aisle's end, behind those
+    who stopped there before."""
+    outer = street.section.pavement_outer
+    for park in street.car_parks:
+        lo, hi = park.s0 + 0.5, park.s1 - 0.5
+        for row in range(park.rows - 1):
+            middle = outer + BAY_START + BAY_DEPTH + AISLE_WIDTH / 2 + row * ROW_PITCH
+            for direction, inset in ((+1, -1.0), (-1, 1.0)):
+                speed = float(np.clip(rng.normal(1.35, 0.15), 0.9, 1.8))
+                gap = AISLE_WALKER_GAP / busyness
+                positions = list(_fill_line(rng, lo, hi, gap, float(rng.uniform(0.0, gap))))
+                for queued, position in enumerate(positions[::-1] if direction > 0 else positions):
+                    shift = queued * WALKER_QUEUE_SPACING
+                    agents.add("human.pedestrian.adult", sample_size("human.pedestrian.adult", rng), p0=position,
+                               offset=park.side * (middle + inset), speed=speed, direction=direction,
+                               p_range=(lo, hi - shift) if direction > 0 else (lo + shift, hi))
 
 
 def _place_crossing_traffic(agents: AgentList, rng, street: Street, busyness: float) -> list:

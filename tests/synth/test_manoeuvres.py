@@ -4,7 +4,7 @@ import pytest
 from sianms_cli.synth.manoeuvres import CLEARANCE, closest_approach
 from sianms_cli.synth.world import SCENE_SECONDS, lateral_offset, plan_scene
 
-VARIED = (0, 1, 3, 4, 5, 36, 38)  # ego lane changes (0, 4), lane changes, a pull-out (5), pull-ins (1, 3)
+VARIED = (0, 1, 3, 5, 6, 36, 38)  # ego lane changes (0, 6), lane changes, pull-outs and pull-ins
 
 
 @pytest.fixture(scope="module")
@@ -27,8 +27,8 @@ def _kinds(plan) -> list[str]:
 def test_every_manoeuvre_appears(plans):
     kinds = {kind for plan in plans.values() for kind in _kinds(plan)}
     assert kinds == {"lane", "out", "in"}
-    # The ego moves one lane, on seed 0's 3-lane arterial and on seed 4's 2-lane street.
-    assert abs(plans[0].ego.shift[0]) == pytest.approx(3.5) and abs(plans[4].ego.shift[0]) == pytest.approx(3.5)
+    # The ego moves one lane, on seed 0's 3-lane arterial and on seed 6's 2-lane street.
+    assert abs(plans[0].ego.shift[0]) == pytest.approx(3.5) and abs(plans[6].ego.shift[0]) == pytest.approx(3.5)
     assert plans[0].street.section.lanes_per_direction == 3
 
 
@@ -51,7 +51,7 @@ def test_manoeuvring_tracks_have_consistent_speed_and_heading(plans, track_yaws)
 
 def test_the_ego_heads_where_it_goes_and_ends_in_the_other_lane(plans):
     dt = 1e-3
-    for seed in (0, 4):
+    for seed in (0, 6):
         plan = plans[seed]
         times = np.arange(0.0, SCENE_SECONDS, 0.25)
         xy, yaw = plan.ego.track(plan.route, times)
@@ -71,9 +71,10 @@ def test_manoeuvres_keep_their_clearance_all_scene(plans):
 
 
 def test_pulling_out_cars_are_stopped_until_they_go(plans):
-    plan = plans[5]
+    plan = plans[6]
     agents = plan.agents
-    out = np.flatnonzero((agents.shift[:, 0] != 0.0) & np.isfinite(agents.p_range).any(axis=1))
+    out = np.flatnonzero((agents.shift[:, 0] != 0.0) & np.isfinite(agents.p_range).any(axis=1)
+                         & (np.abs(agents.offset) > plan.street.section.parking_inner))
     start = agents.shift[out, 1]
     before = agents.attributes(agents.pose(plan.route, float(start[0]) - 0.5)[2])[out[0]]
     after = agents.attributes(agents.pose(plan.route, float(start[0]) + 0.5)[2])[out[0]]

@@ -1,9 +1,13 @@
 import numpy as np
 import pytest
 
+from sianms_cli.synth.parking import bay_poses, car_park_depth
 from sianms_cli.synth.road import (
+    BAY_DEPTH,
+    BAY_START,
     BAY_WIDTH,
     LANE_WIDTH,
+    ROW_PITCH,
     CarPark,
     CrossSection,
     Intersection,
@@ -156,6 +160,33 @@ def test_car_park_is_asphalt_with_slanted_bay_lines():
     _, markings, _ = street.surface(on_line)
     assert markings.all()
     assert street.in_car_park(np.array([120.0, 120.0]), np.array([y, -y])).tolist() == [True, False]
+
+
+def test_rows_of_bays_repeat_the_first_row_behind_an_aisle():
+    route = Route(np.zeros(2), 0.0, np.array([400.0]), np.array([0.0]))
+    section = CrossSection(1, False, +1)
+    park = CarPark(side=+1, s0=100.0, s1=140.0, depth=car_park_depth(3), angle=np.pi / 3, rows=3)
+    street = Street(route, section, (), center_line_yellow=True, car_parks=(park,))
+    outer = section.pavement_outer
+    s, d, yaw = bay_poses(park, outer)
+    per_row = len(s) // 3
+    assert per_row == int((40.0 - (BAY_START + BAY_DEPTH) / np.tan(np.pi / 3)) // park.bay_spacing)
+    np.testing.assert_allclose(np.unique(d), outer + BAY_START + BAY_DEPTH / 2 + ROW_PITCH * np.arange(3))
+    np.testing.assert_array_equal(s[:per_row], s[per_row:2 * per_row])  # straight behind each other
+    np.testing.assert_allclose(yaw, np.pi / 3)
+    assert park.in_bay_row(d - outer).all() and street.in_car_park(s, d).all()
+    # The aisle between two rows is asphalt of the car park without paint; the back row has lines.
+    aisle = outer + BAY_START + BAY_DEPTH + 3.0
+    assert not park.in_bay_row(np.array([aisle - outer]))[0]
+    assert park.in_bay_row(np.array([2 * ROW_PITCH + BAY_START + 1.0, 3 * ROW_PITCH + BAY_START + 1.0])).tolist() \
+        == [True, False]
+    across = np.array([1.5, 2.0, 4.0]) + 2 * ROW_PITCH
+    first_row_across = across - 2 * ROW_PITCH
+    on_line = np.column_stack([100.0 + 3 * park.bay_spacing + first_row_across / np.tan(np.pi / 3), outer + across])
+    _, markings, _ = street.surface(on_line)
+    assert markings.all()
+    klass, markings, _ = street.surface(np.array([[120.0, aisle]]))
+    assert klass[0] == 0 and not markings[0]
 
 
 def test_albedo_is_deterministic_and_in_range():
