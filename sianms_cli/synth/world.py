@@ -710,16 +710,21 @@ def _place_pedestrians(agents: AgentList, rng, street: Street, busyness: float) 
                 edge = hi if direction > 0 else lo
                 queued = waiting.get(edge, 0)
                 waiting[edge] = queued + 1
-                shift = queued * WALKER_QUEUE_SPACING
-                p_range = (lo, hi - shift) if direction > 0 else (lo + shift, hi)
                 agents.add(category, size, p0=position, offset=offset, speed=speed, direction=direction,
-                           p_range=p_range)
+                           p_range=_queued_range(lo, hi, direction, queued))
         for position in _fill_line(rng, 0.0, length, STANDING_GAP / busyness, float(rng.uniform(0, 100))):
             category = "human.pedestrian.adult"
             offset = side * (section.kerb + PAVEMENT_WIDTH - 0.2)
             size = sample_size(category, rng)
             if not _in_spans(position, spans, margin=1.0):
                 agents.add(category, size, p0=position, offset=offset, yaw_offset=float(rng.uniform(-np.pi, np.pi)))
+
+
+def _queued_range(lo: float, hi: float, direction: int, queued: int) -> tuple[float, float]:
+    """Path range of a walker heading for the end of [lo, hi] with ``queued`` walkers already
+    waiting there: it stops one body length behind the last of them."""
+    shift = queued * WALKER_QUEUE_SPACING
+    return (lo, hi - shift) if direction > 0 else (lo + shift, hi)
 
 
 def _place_car_park_walkers(agents: AgentList, rng, street: Street, busyness: float) -> None:
@@ -736,10 +741,9 @@ def _place_car_park_walkers(agents: AgentList, rng, street: Street, busyness: fl
                 gap = AISLE_WALKER_GAP / busyness
                 positions = list(_fill_line(rng, lo, hi, gap, float(rng.uniform(0.0, gap))))
                 for queued, position in enumerate(positions[::-1] if direction > 0 else positions):
-                    shift = queued * WALKER_QUEUE_SPACING
                     agents.add("human.pedestrian.adult", sample_size("human.pedestrian.adult", rng), p0=position,
                                offset=park.side * (middle + inset), speed=speed, direction=direction,
-                               p_range=(lo, hi - shift) if direction > 0 else (lo + shift, hi))
+                               p_range=_queued_range(lo, hi, direction, queued))
 
 
 def _place_crossing_traffic(agents: AgentList, rng, street: Street, busyness: float) -> list:
