@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from sianms_cli.errors import SianmsError
+from sianms_cli.evaluation.config import DETECTION_CVPR_2019
 from sianms_cli.geometry.quaternion import quat_to_matrix
 from sianms_cli.io import check_writable_output, write_json
 from sianms_cli.progress import SILENT, Progress
@@ -35,6 +36,7 @@ CAR = "vehicle.car"
 HUMAN_PREFIX = "human."  # the devkit#457 "humans": every human.* category
 CAR_EVAL_RANGE = 50.0  # the devkit's class range for cars (detection_cvpr_2019)
 DISTANCE_BANDS_M = (0.0, 10.0, 20.0, 30.0, 50.0)
+CLASS_RANGE_BANDS_M = (0.0, 20.0, 30.0, 40.0, 50.0)  # the bands of the published val figures
 AZIMUTH_BIN_DEGREES = 15.0
 FORE_AFT_DEGREES = 15.0  # half-width of the fore-aft sectors (ahead and behind)
 HEADING_BIN_DEGREES = 5.0
@@ -124,6 +126,7 @@ def summarize(db: NuScenesDB, max_sweeps: int = 200, progress: Progress = SILENT
             "cars_within_50m_with_points_by_distance": distance_band_figures(
                 distance[cars_in_range], cameras[cars_in_range], DISTANCE_BANDS_M),
         },
+        "class_range": class_range_figures(classes, distance, n_samples),
         "car_azimuth_within_50m": azimuth_figures(centers_ego[cars_within_50m, :2]),
         "car_heading_to_axis_within_50m": heading_to_axis_figures(heading_ego),
         "ego_motion": ego_motion(db),
@@ -179,6 +182,35 @@ def distance_band_figures(distance: np.ndarray, cameras: np.ndarray, edges: tupl
         figures[f"{low:g}-{high:g}"] = {"boxes_3d": int(members.sum()),
                                         "share_imaged_by_2_or_more": _share(cameras[members] >= 2)}
     return figures
+
+
+def class_range_figures(classes: np.ndarray, distance: np.ndarray, n_samples: int,
+                        class_range: dict = DETECTION_CVPR_2019["class_range"]) -> dict:
+    """How much of what is annotated the detection benchmark evaluates: the share of each
+    class's boxes inside its class range (ego distance strictly below it, as the devkit
+    filters), those boxes per keyframe, and how the in-range boxes spread over distance.
+
+    Args:
+        classes: (N,) detection class of each annotation, "" for one that is not evaluated.
+        distance: (N,) xy distance to the ego of its LIDAR_TOP key frame, metres (inf without one).
+        n_samples: keyframes of the dataset.
+        class_range: {detection class: range in metres}.
+    """
+    limit = np.array([class_range.get(str(name), 0.0) for name in classes], dtype=float)
+    evaluated = classes != ""
+    in_range = evaluated & (distance < limit)
+    edges = CLASS_RANGE_BANDS_M
+    band = np.searchsorted(np.asarray(edges), distance[in_range], side="right") - 1
+    return {
+        "share_in_class_range": _share(in_range[evaluated]),
+        "per_keyframe_in_class_range": float(in_range.sum() / max(n_samples, 1)),
+        "by_class": {name: {"share_in_class_range": _share(in_range[classes == name]),
+                            "per_keyframe_in_class_range": float(np.sum(in_range & (classes == name))
+                                                                 / max(n_samples, 1))}
+                     for name in class_range if np.any(classes == name)},
+        "distance_band_shares": {f"{low:g}-{high:g}": _share(band == i) for i, (low, high)
+                                 in enumerate(zip(edges[:-1], edges[1:]))},
+    }
 
 
 def azimuth_figures(xy_ego: np.ndarray) -> dict:
@@ -354,6 +386,7 @@ def format_summary(summary: dict) -> str:
             f"max {sweeps['max']} over {sweeps['files']} keyframe files" if sweeps
             else "not measured (--max-sweeps 0)" if summary["max_sweeps"] == 0 else "no LiDAR files")
         + _versus("lidar_points_per_sweep"))
+    lines += _class_range_lines(summary["class_range"])
     lines += _image_box_lines(summary["image_boxes"])
     lines.append(
         f"  cars in the camera-overlap region: {_percent(summary['car_share_in_overlap'])} of all car annotations, "
@@ -373,6 +406,27 @@ def _condition_lines(conditions: dict, scenes: int) -> list[str]:
         + _versus("scene_share_rain"),
         f"  scenes at night in rain: {conditions['night_and_rain']}, {_percent(conditions['share_night_and_rain'])}",
     ]
+
+
+def _class_range_lines(figures: dict) -> list[str]:
+    """What the detection benchmark sees of the annotations: its class ranges."""
+    share = REFERENCE["share_in_class_range"].value
+    per_keyframe = REFERENCE["per_keyframe_in_class_range"].value
+    lines = [
+        f"  inside the devkit's class ranges: {_percent(figures['share_in_class_range'])} of the evaluated boxes"
+        + _versus("share_in_class_range"),
+        f"    per keyframe: {figures['per_keyframe_in_class_range']:.1f}" + _versus("per_keyframe_in_class_range"),
+        f"    {'class':<22} {'in range':>9} {'per keyframe':>13} | nuScenes",
+    ]
+    for name, values in figures["by_class"].items():
+        lines.append(f"    {name:<22} {_percent(values['share_in_class_range']):>9} "
+                     f"{values['per_keyframe_in_class_range']:>13.2f} | {100 * share[name]:.0f} %, "
+                     f"{per_keyframe[name]:.2f}")
+    bands = figures["distance_band_shares"]
+    lines.append(f"    in-range boxes by distance {' / '.join(bands)} m: "
+                 + " / ".join(_percent(value) for value in bands.values())
+                 + _versus("class_range_distance_band_shares"))
+    return lines
 
 
 def _image_box_lines(image: dict) -> list[str]:

@@ -11,6 +11,7 @@ from sianms_cli.reporting.dataset_summary import (
     _headings_in_ego,
     azimuth_figures,
     camera_count_figures,
+    class_range_figures,
     distance_band_figures,
     format_summary,
     heading_to_axis_figures,
@@ -37,6 +38,29 @@ def test_distance_bands_are_half_open_and_end_at_the_last_edge():
         "20-30": {"boxes_3d": 0, "share_imaged_by_2_or_more": None},
         "30-50": {"boxes_3d": 2, "share_imaged_by_2_or_more": 0.5},
     }
+
+
+def test_class_range_figures_use_the_devkit_strict_range_and_the_val_bands():
+    classes = np.array(["car", "car", "car", "pedestrian", "pedestrian", "barrier", "", "car"])
+    distance = np.array([5.0, 49.99, 50.0, 39.0, 40.0, 25.0, 3.0, np.inf])  # inf: no LIDAR_TOP key frame
+    figures = class_range_figures(classes, distance, n_samples=2)
+    assert figures["share_in_class_range"] == 4 / 7  # the unevaluated box counts nowhere
+    assert figures["per_keyframe_in_class_range"] == 2.0
+    assert figures["by_class"] == {
+        "car": {"share_in_class_range": 0.5, "per_keyframe_in_class_range": 1.0},
+        "pedestrian": {"share_in_class_range": 0.5, "per_keyframe_in_class_range": 0.5},
+        "barrier": {"share_in_class_range": 1.0, "per_keyframe_in_class_range": 0.5},
+    }
+    # in range: 5 (0-20), 25 (20-30), 39 (30-40), 49.99 (40-50)
+    assert figures["distance_band_shares"] == {"0-20": 0.25, "20-30": 0.25, "30-40": 0.25, "40-50": 0.25}
+
+
+def test_published_class_range_figures_add_up():
+    """The per-class val figures are shares of one total: they must sum back to it."""
+    per_keyframe = REFERENCE["per_keyframe_in_class_range"].value
+    assert sum(v for k, v in per_keyframe.items() if k != "all") == pytest.approx(per_keyframe["all"], rel=0.01)
+    assert per_keyframe["car"] == pytest.approx(9.9, abs=0.05)  # the reference's stated cars within 50 m
+    assert sum(REFERENCE["class_range_distance_band_shares"].value.values()) == pytest.approx(1.0)
 
 
 def test_azimuth_histogram_and_fore_aft_share():
@@ -88,6 +112,11 @@ def test_summary_figures_are_consistent(tiny_dataroot):
     cars = summary["annotations_per_category"].get("vehicle.car", 0)
     assert by_class["car"] == pytest.approx(cars / summary["samples"])
     assert set(summary["nuscenes_reference"]) == set(REFERENCE)
+    in_range = summary["class_range"]
+    assert in_range["per_keyframe_in_class_range"] == pytest.approx(
+        sum(figures["per_keyframe_in_class_range"] for figures in in_range["by_class"].values()))
+    assert in_range["by_class"]["car"]["per_keyframe_in_class_range"] * summary["samples"] >= round(
+        summary["cars_per_keyframe_within_50m"] * summary["samples"])  # adds the cars without points
 
 
 def test_text_report_holds_each_figure_against_nuscenes(tiny_dataroot):
@@ -96,6 +125,7 @@ def test_text_report_holds_each_figure_against_nuscenes(tiny_dataroot):
         assert f"| nuScenes {reference.text} ({reference.source})" in text, key
     assert "3-D boxes imaged by >= 2 cameras: " in text
     assert "cars within 50 m with LiDAR points imaged by >= 2 cameras: 0-10 m" in text
+    assert "in-range boxes by distance 0-20 / 20-30 / 30-40 / 40-50 m: " in text
 
 
 def test_run_writes_the_json_it_returns(tiny_dataroot, tmp_path):
