@@ -34,7 +34,7 @@ from sianms_cli.reporting.nuscenes_reference import REFERENCE, reference_json
 
 CAR = "vehicle.car"
 HUMAN_PREFIX = "human."  # the devkit#457 "humans": every human.* category
-CAR_EVAL_RANGE = 50.0  # the devkit's class range for cars (detection_cvpr_2019)
+CAR_EVAL_RANGE = float(DETECTION_CVPR_2019["class_range"]["car"])  # the devkit's class range for cars
 DISTANCE_BANDS_M = (0.0, 10.0, 20.0, 30.0, 50.0)
 CLASS_RANGE_BANDS_M = (0.0, 20.0, 30.0, 40.0, 50.0)  # the bands of the published val figures
 AZIMUTH_BIN_DEGREES = 15.0
@@ -196,18 +196,21 @@ def class_range_figures(classes: np.ndarray, distance: np.ndarray, n_samples: in
         n_samples: keyframes of the dataset.
         class_range: {detection class: range in metres}.
     """
-    limit = np.array([class_range.get(str(name), 0.0) for name in classes], dtype=float)
+    members = {name: classes == name for name in class_range}
+    limit = np.zeros(len(classes))  # 0 m: an unevaluated class is never in range
+    for name, member in members.items():
+        limit[member] = class_range[name]
     evaluated = classes != ""
     in_range = evaluated & (distance < limit)
+    keyframes = max(n_samples, 1)
     edges = CLASS_RANGE_BANDS_M
     band = np.searchsorted(np.asarray(edges), distance[in_range], side="right") - 1
     return {
         "share_in_class_range": _share(in_range[evaluated]),
-        "per_keyframe_in_class_range": float(in_range.sum() / max(n_samples, 1)),
-        "by_class": {name: {"share_in_class_range": _share(in_range[classes == name]),
-                            "per_keyframe_in_class_range": float(np.sum(in_range & (classes == name))
-                                                                 / max(n_samples, 1))}
-                     for name in class_range if np.any(classes == name)},
+        "per_keyframe_in_class_range": float(in_range.sum() / keyframes),
+        "by_class": {name: {"share_in_class_range": _share(in_range[member]),
+                            "per_keyframe_in_class_range": float(np.sum(in_range[member]) / keyframes)}
+                     for name, member in members.items() if member.any()},
         "distance_band_shares": {f"{low:g}-{high:g}": _share(band == i) for i, (low, high)
                                  in enumerate(zip(edges[:-1], edges[1:]))},
     }
