@@ -82,6 +82,7 @@ def summarize(db: NuScenesDB, max_sweeps: int = 200, progress: Progress = SILENT
     per_sample = np.bincount(sample_rows, minlength=n_samples)
     cars_per_sample = np.bincount(sample_rows[categories == CAR], minlength=n_samples)
     lidar_points = annotations.column("num_lidar_pts").astype(np.int64)
+    radar_points = annotations.column("num_radar_pts").astype(np.int64)
     overlap, centers_ego, ego_rotation = _overlap_and_ego_frame(db)
     distance = np.hypot(centers_ego[:, 0], centers_ego[:, 1])
     cars = categories == CAR
@@ -109,7 +110,8 @@ def summarize(db: NuScenesDB, max_sweeps: int = 200, progress: Progress = SILENT
         "cars_per_keyframe_within_50m": float(np.sum(cars_in_range) / max(n_samples, 1)),
         "lidar_points_per_annotation": float(lidar_points.mean()) if len(lidar_points) else 0.0,
         "share_annotations_without_lidar_points": _share(lidar_points == 0),
-        "visibility_shares": _visibility_shares(annotations),
+        "radar_points_per_annotation": float(radar_points.mean()) if len(radar_points) else 0.0,
+        "visibility_shares": visibility_shares(annotations.column("visibility_token")),
         "vehicle_attribute_shares": _attribute_shares(db, "vehicle."),
         "lidar_points_per_sweep": _lidar_points_per_sweep(db, max_sweeps, progress),
         "max_sweeps": max_sweeps,
@@ -126,7 +128,8 @@ def summarize(db: NuScenesDB, max_sweeps: int = 200, progress: Progress = SILENT
             "cars_within_50m_with_points_by_distance": distance_band_figures(
                 distance[cars_in_range], cameras[cars_in_range], DISTANCE_BANDS_M),
         },
-        "class_range": class_range_figures(classes, distance, n_samples),
+        "class_range": class_range_figures(classes, distance, n_samples, lidar_points, radar_points,
+                                           annotations.column("visibility_token")),
         "car_azimuth_within_50m": azimuth_figures(centers_ego[cars_within_50m, :2]),
         "car_heading_to_axis_within_50m": heading_to_axis_figures(heading_ego),
         "ego_motion": ego_motion(db),
@@ -184,16 +187,21 @@ def distance_band_figures(distance: np.ndarray, cameras: np.ndarray, edges: tupl
     return figures
 
 
-def class_range_figures(classes: np.ndarray, distance: np.ndarray, n_samples: int,
+def class_range_figures(classes: np.ndarray, distance: np.ndarray, n_samples: int, lidar_points: np.ndarray,
+                        radar_points: np.ndarray, visibility_tokens: np.ndarray,
                         class_range: dict = DETECTION_CVPR_2019["class_range"]) -> dict:
     """How much of what is annotated the detection benchmark evaluates: the share of each
     class's boxes inside its class range (ego distance strictly below it, as the devkit
-    filters), those boxes per keyframe, and how the in-range boxes spread over distance.
+    filters), those boxes per keyframe, how the in-range boxes spread over distance, how
+    many of them hold no LiDAR point, no radar return, or neither (the devkit drops the last),
+    and how visible they are (nuScenes' published visibility shares are of in-range boxes).
 
     Args:
         classes: (N,) detection class of each annotation, "" for one that is not evaluated.
         distance: (N,) xy distance to the ego of its LIDAR_TOP key frame, metres (inf without one).
         n_samples: keyframes of the dataset.
+        lidar_points, radar_points: (N,) ``num_lidar_pts`` and ``num_radar_pts``.
+        visibility_tokens: (N,) ``visibility_token`` "1".."4".
         class_range: {detection class: range in metres}.
     """
     members = {name: classes == name for name in class_range}
@@ -213,6 +221,10 @@ def class_range_figures(classes: np.ndarray, distance: np.ndarray, n_samples: in
                      for name, member in members.items() if member.any()},
         "distance_band_shares": {f"{low:g}-{high:g}": _share(band == i) for i, (low, high)
                                  in enumerate(zip(edges[:-1], edges[1:]))},
+        "share_without_lidar_points": _share(lidar_points[in_range] == 0),
+        "share_without_radar_points": _share(radar_points[in_range] == 0),
+        "share_without_lidar_or_radar_points": _share((lidar_points[in_range] == 0) & (radar_points[in_range] == 0)),
+        "visibility_shares": visibility_shares(visibility_tokens[in_range]),
     }
 
 
@@ -292,8 +304,8 @@ def _share(mask: np.ndarray) -> float | None:
     return float(np.mean(mask)) if len(mask) else None
 
 
-def _visibility_shares(annotations) -> dict:
-    tokens = annotations.column("visibility_token")
+def visibility_shares(tokens: np.ndarray) -> dict:
+    """Shares of the visibility levels (0-40 ... 80-100 %) among annotations' ``visibility_token``s."""
     counts = Counter(str(t) for t in tokens)
     total = max(sum(counts.values()), 1)
     return {level: counts.get(token, 0) / total for token, level in VISIBILITY_LEVELS.items()}
@@ -377,8 +389,10 @@ def format_summary(summary: dict) -> str:
         + _versus("lidar_points_per_annotation"),
         f"  annotations without any LiDAR point: {_percent(summary['share_annotations_without_lidar_points'])}"
         + _versus("share_annotations_without_lidar_points"),
-        "  visibility: " + ", ".join(f"{k} {_percent(v)}" for k, v in summary["visibility_shares"].items())
-        + _versus("visibility_shares"),
+        f"  radar returns per annotation: mean {summary['radar_points_per_annotation']:.2f}"
+        + _versus("radar_points_per_annotation"),
+        "  visibility of all annotations: "
+        + ", ".join(f"{k} {_percent(v)}" for k, v in summary["visibility_shares"].items()),
         "  vehicle attributes: " + ", ".join(
             f"{k.split('.')[-1]} {_percent(v)}" for k, v in summary["vehicle_attribute_shares"].items()),
     ]
@@ -429,6 +443,13 @@ def _class_range_lines(figures: dict) -> list[str]:
     lines.append(f"    in-range boxes by distance {' / '.join(bands)} m: "
                  + " / ".join(_percent(value) for value in bands.values())
                  + _versus("class_range_distance_band_shares"))
+    lines.append("    in-range boxes without a LiDAR point / radar return / either: "
+                 + " / ".join(_percent(figures[key]) for key in (
+                     "share_without_lidar_points", "share_without_radar_points",
+                     "share_without_lidar_or_radar_points"))
+                 + _versus("class_range_empty_shares"))
+    lines.append("    in-range visibility: " + ", ".join(
+        f"{k} {_percent(v)}" for k, v in figures["visibility_shares"].items()) + _versus("visibility_shares"))
     return lines
 
 

@@ -43,7 +43,10 @@ def test_distance_bands_are_half_open_and_end_at_the_last_edge():
 def test_class_range_figures_use_the_devkit_strict_range_and_the_val_bands():
     classes = np.array(["car", "car", "car", "pedestrian", "pedestrian", "barrier", "", "car"])
     distance = np.array([5.0, 49.99, 50.0, 39.0, 40.0, 25.0, 3.0, np.inf])  # inf: no LIDAR_TOP key frame
-    figures = class_range_figures(classes, distance, n_samples=2)
+    lidar = np.array([0, 0, 3, 9, 0, 0, 0, 0])
+    radar = np.array([0, 2, 0, 0, 0, 1, 0, 0])
+    visibility = np.array(["1", "4", "4", "3", "4", "2", "1", "1"])
+    figures = class_range_figures(classes, distance, 2, lidar, radar, visibility)
     assert figures["share_in_class_range"] == 4 / 7  # the unevaluated box counts nowhere
     assert figures["per_keyframe_in_class_range"] == 2.0
     assert figures["by_class"] == {
@@ -53,6 +56,11 @@ def test_class_range_figures_use_the_devkit_strict_range_and_the_val_bands():
     }
     # in range: 5 (0-20), 25 (20-30), 39 (30-40), 49.99 (40-50)
     assert figures["distance_band_shares"] == {"0-20": 0.25, "20-30": 0.25, "30-40": 0.25, "40-50": 0.25}
+    # in range: 5 m (no point), 49.99 m (radar only), 39 m pedestrian (LiDAR only), 25 m barrier (radar only)
+    assert figures["share_without_lidar_points"] == 3 / 4
+    assert figures["share_without_radar_points"] == 2 / 4
+    assert figures["share_without_lidar_or_radar_points"] == 1 / 4
+    assert figures["visibility_shares"] == {"v0-40": 1 / 4, "v40-60": 1 / 4, "v60-80": 1 / 4, "v80-100": 1 / 4}
 
 
 def test_published_class_range_figures_add_up():

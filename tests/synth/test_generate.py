@@ -90,6 +90,22 @@ def test_num_lidar_pts_counts_the_points_inside_each_box(tiny_dataroot):
         assert np.all(count_points_in_boxes(points_global, center, size + 0.004, rotation) >= stored)
 
 
+def test_every_track_starts_and_ends_on_a_sighting(tiny_dataroot):
+    # The LiDAR sights objects: one point, two beyond SINGLE_POINT_SIGHTING_RANGE; radar returns
+    # are counted but sight nothing. Boxes between the first and last sighting may hold nothing.
+    db = NuScenesDB(tiny_dataroot, "v1.0-mini")
+    annotations = db.table("sample_annotation")
+    ego = {sample: db.ego_pose_of(db.keyframe_data(sample)["LIDAR_TOP"])[1][:2] for sample in db.table("sample").tokens}
+    samples = annotations.column("sample_token")
+    distance = np.hypot(*(annotations.column("translation")[:, :2] - np.stack([ego[t] for t in samples])).T)
+    lidar, radar = annotations.column("num_lidar_pts"), annotations.column("num_radar_pts")
+    sighted = lidar >= np.where(distance < generate.SINGLE_POINT_SIGHTING_RANGE, 1, 2)
+    instances = db.table("instance")
+    ends = np.concatenate([instances.rows("first_annotation_token"), instances.rows("last_annotation_token")])
+    assert sighted[ends].all()
+    assert (radar > 0).any()
+
+
 def test_images_match_their_scaled_intrinsics(tiny_dataroot):
     db = NuScenesDB(tiny_dataroot, "v1.0-mini")
     sample = db.table("sample").tokens[0]
@@ -257,9 +273,9 @@ def test_scene_descriptions_say_what_the_ego_does_and_where():
     from sianms_cli.synth.world import plan_scene
 
     texts = {seed: generate._describe(plan_scene(np.random.default_rng(seed), drive_side=+1 if seed % 2 else -1),
-                                      "boston-seaport") for seed in (0, 3, 4, 36)}
-    assert "Three lanes each way, median" in texts[0] and "ego changes lane" in texts[0]
-    assert "lane changes and parking manoeuvres" in texts[0] and "turning traffic" in texts[0]
+                                      "boston-seaport") for seed in (27, 3, 4, 36)}
+    assert "Three lanes each way, median" in texts[27] and "ego changes lane" in texts[27]
+    assert "lane changes and parking manoeuvres" in texts[27] and "turning traffic" in texts[27]
     assert "ego turns" in texts[3] and "T junction" in texts[3]
     assert "4-way junction" in texts[36]
     assert "car park" in texts[4] and "roadworks" in texts[4]

@@ -62,7 +62,7 @@ def test_every_place_type_appears_in_the_seeded_scenes(seeded):
     angles = {round(float(np.degrees(c.angle))) for p in seeded for c in p.street.car_parks}
     assert angles == {90, 60, 45}
     assert {c.rows for p in seeded for c in p.street.car_parks} == {1, 2, 3}
-    assert sum(p.roadworks for p in seeded) == 14  # 35 % of 37.5: those without room between junctions drop out
+    assert sum(p.roadworks for p in seeded) == 15  # of 0.75 x 0.65 = 49 %: those without room between junctions drop out
     assert sum(_roadworks_sides(p) == 2 for p in seeded) >= 2  # both parking lanes closed
     assert sum(_parked(p, "vehicle.construction").any() for p in seeded) >= 10  # at sites and at the kerb
     assert sum(_parked(p, "vehicle.trailer").any() for p in seeded) >= 15
