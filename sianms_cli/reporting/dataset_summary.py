@@ -37,6 +37,7 @@ HUMAN_PREFIX = "human."  # the devkit#457 "humans": every human.* category
 CAR_EVAL_RANGE = float(DETECTION_CVPR_2019["class_range"]["car"])  # the devkit's class range for cars
 DISTANCE_BANDS_M = (0.0, 10.0, 20.0, 30.0, 50.0)
 CLASS_RANGE_BANDS_M = (0.0, 20.0, 30.0, 40.0, 50.0)  # the bands of the published val figures
+POINT_BANDS_M = (0.0, 10.0, 20.0, 30.0, 40.0, 50.0, np.inf)  # LiDAR points per annotation by distance
 AZIMUTH_BIN_DEGREES = 15.0
 FORE_AFT_DEGREES = 15.0  # half-width of the fore-aft sectors (ahead and behind)
 HEADING_BIN_DEGREES = 5.0
@@ -109,6 +110,7 @@ def summarize(db: NuScenesDB, max_sweeps: int = 200, progress: Progress = SILENT
         "cars_per_keyframe": _distribution(cars_per_sample),
         "cars_per_keyframe_within_50m": float(np.sum(cars_in_range) / max(n_samples, 1)),
         "lidar_points_per_annotation": float(lidar_points.mean()) if len(lidar_points) else 0.0,
+        "lidar_points_by_distance": lidar_point_band_figures(distance, lidar_points),
         "share_annotations_without_lidar_points": _share(lidar_points == 0),
         "radar_points_per_annotation": float(radar_points.mean()) if len(radar_points) else 0.0,
         "visibility_shares": visibility_shares(annotations.column("visibility_token")),
@@ -184,6 +186,31 @@ def distance_band_figures(distance: np.ndarray, cameras: np.ndarray, edges: tupl
         members = band == i
         figures[f"{low:g}-{high:g}"] = {"boxes_3d": int(members.sum()),
                                         "share_imaged_by_2_or_more": _share(cameras[members] >= 2)}
+    return figures
+
+
+def lidar_point_band_figures(distance: np.ndarray, lidar_points: np.ndarray,
+                              edges: tuple[float, ...] = POINT_BANDS_M) -> dict:
+    """Where the mean LiDAR points per annotation come from: per ego-distance band [lo, hi),
+    the share of the annotations, their mean and median points, and the band's part of the
+    overall mean (the parts sum to it). A few boxes beside the ego hold hundreds of points
+    each, so the overall mean is mostly theirs.
+
+    Args:
+        distance: (N,) xy distance to the ego, metres (inf without a LIDAR_TOP key frame).
+        lidar_points: (N,) ``num_lidar_pts``.
+    """
+    band = np.minimum(np.searchsorted(np.asarray(edges), distance, side="right") - 1, len(edges) - 2)  # inf: last
+    total = max(len(distance), 1)
+    figures = {}
+    for i, (low, high) in enumerate(zip(edges[:-1], edges[1:])):
+        points = lidar_points[band == i]
+        figures[f"{low:g}-{high:g}"] = {
+            "share": len(points) / total,
+            "mean": float(points.mean()) if len(points) else None,
+            "median": float(np.median(points)) if len(points) else None,
+            "part_of_mean": float(points.sum() / total),
+        }
     return figures
 
 
@@ -387,6 +414,9 @@ def format_summary(summary: dict) -> str:
         f"{summary['cars_per_keyframe_within_50m']:.1f})",
         f"  LiDAR points per annotation: mean {summary['lidar_points_per_annotation']:.1f}"
         + _versus("lidar_points_per_annotation"),
+        "    by distance (share of annotations, mean / median points, part of the mean): " + "; ".join(
+            f"{band} m {_percent(v['share'])} {_number(v['mean'], 0)} / {_number(v['median'], 0)}, "
+            f"{_number(v['part_of_mean'], 1)}" for band, v in summary["lidar_points_by_distance"].items()),
         f"  annotations without any LiDAR point: {_percent(summary['share_annotations_without_lidar_points'])}"
         + _versus("share_annotations_without_lidar_points"),
         f"  radar returns per annotation: mean {summary['radar_points_per_annotation']:.2f}"

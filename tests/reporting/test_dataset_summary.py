@@ -12,6 +12,7 @@ from sianms_cli.reporting.dataset_summary import (
     azimuth_figures,
     camera_count_figures,
     class_range_figures,
+    lidar_point_band_figures,
     distance_band_figures,
     format_summary,
     heading_to_axis_figures,
@@ -61,6 +62,17 @@ def test_class_range_figures_use_the_devkit_strict_range_and_the_val_bands():
     assert figures["share_without_radar_points"] == 2 / 4
     assert figures["share_without_lidar_or_radar_points"] == 1 / 4
     assert figures["visibility_shares"] == {"v0-40": 1 / 4, "v40-60": 1 / 4, "v60-80": 1 / 4, "v80-100": 1 / 4}
+
+
+def test_lidar_points_by_distance_split_the_mean():
+    distance = np.array([3.0, 9.99, 10.0, 45.0, 70.0, np.inf])
+    points = np.array([900, 100, 40, 2, 0, 0])
+    figures = lidar_point_band_figures(distance, points)
+    assert list(figures) == ["0-10", "10-20", "20-30", "30-40", "40-50", "50-inf"]
+    assert figures["0-10"] == {"share": 2 / 6, "mean": 500.0, "median": 500.0, "part_of_mean": 1000 / 6}
+    assert figures["20-30"] == {"share": 0.0, "mean": None, "median": None, "part_of_mean": 0.0}
+    assert figures["50-inf"]["share"] == 2 / 6  # an annotation without a LIDAR_TOP key frame is at inf
+    assert sum(v["part_of_mean"] for v in figures.values()) == pytest.approx(points.mean())
 
 
 def test_published_class_range_figures_add_up():
