@@ -47,7 +47,8 @@ REFERENCE: dict[str, Reference] = {
         3_466 / 18_538, "18.7 %", "v1.0-mini, 3,466 of 18,538; nuscenes-devkit#313"),
     "radar_points_per_annotation": Reference(0.85, "0.85", "v1.0-mini; nuscenes-devkit#219"),
     "class_range_empty_shares": Reference(
-        {"lidar": 0.1201, "radar": 0.6119, "lidar_or_radar": 0.0943},
+        {"share_without_lidar_points": 0.1201, "share_without_radar_points": 0.6119,
+         "share_without_lidar_or_radar_points": 0.0943},
         "12.0 / 61.2 / 9.4 %", "third-party, v1.0-val in-range boxes (reiyah-measure)"),
     "lidar_points_per_sweep": Reference(34_000.0, "~34k", "HDL-32E sweep files; NVIDIA ncore nuScenes page"),
     "objects_per_keyframe": Reference(1_166_187 / 34_149, "34.1", "derived, v1.0-trainval 1,166,187 / 34,149"),

@@ -61,6 +61,7 @@ def test_class_range_figures_use_the_devkit_strict_range_and_the_val_bands():
     assert figures["share_without_lidar_points"] == 3 / 4
     assert figures["share_without_radar_points"] == 2 / 4
     assert figures["share_without_lidar_or_radar_points"] == 1 / 4
+    assert set(REFERENCE["class_range_empty_shares"].value) <= set(figures)  # the reference names our figures
     assert figures["visibility_shares"] == {"v0-40": 1 / 4, "v40-60": 1 / 4, "v60-80": 1 / 4, "v80-100": 1 / 4}
 
 
