@@ -393,7 +393,6 @@ class _Frame:
     """What a keyframe contributes to the annotation table, before the scene is complete."""
 
     annotated: np.ndarray  # (N,) bool: agent within the annotation radius
-    distance: np.ndarray  # (N,) xy distance from the ego, metres
     ego_xy: np.ndarray  # (N,2) box centres in the ego frame (x forward, y left), metres
     center: np.ndarray  # (N,3)
     yaw: np.ndarray  # (N,)
@@ -638,7 +637,7 @@ class _SceneSensing:
         with np.errstate(invalid="ignore", divide="ignore"):
             visibility = np.where(covered > 0, visible / covered, np.nan)
         ego_xy = (center[:, :2] - ego_to_global[:2, 3]) @ ego_to_global[:2, :2]
-        frame = _Frame(distance < ANNOTATION_RADIUS, distance, ego_xy, center, yaw, rotation,
+        frame = _Frame(distance < ANNOTATION_RADIUS, ego_xy, center, yaw, rotation,
                        plan.agents.attributes(speed), lidar_points, visibility)
         return frame, records
 
@@ -818,10 +817,10 @@ def _annotation_records(plan: ScenePlan, frames: list[_Frame], sample_tokens: li
     """
     annotated = np.stack([f.annotated for f in frames])  # (K, N)
     points = np.stack([f.lidar_points for f in frames])
-    near = np.stack([f.distance for f in frames]) < SINGLE_POINT_SIGHTING_RANGE
+    ego_xy = np.stack([f.ego_xy for f in frames])
+    near = np.hypot(ego_xy[..., 0], ego_xy[..., 1]) < SINGLE_POINT_SIGHTING_RANGE
     strength = returns_at_10_m([SHAPE_KIND[c] for c in plan.agents.category])
-    radar = radar_returns(radar_rng, strength, np.stack([f.ego_xy for f in frames]),
-                          np.stack([f.visibility for f in frames]))
+    radar = radar_returns(radar_rng, strength, ego_xy, np.stack([f.visibility for f in frames]))
     seen = annotated & (points >= np.where(near, 1, 2))
     k = np.arange(len(frames))[:, None]
     first = np.where(seen, k, len(frames)).min(axis=0)
