@@ -180,7 +180,7 @@ def distance_band_figures(distance: np.ndarray, cameras: np.ndarray, edges: tupl
         cameras: (N,) how many cameras image each box.
         edges: increasing band edges, metres.
     """
-    band = np.searchsorted(np.asarray(edges), distance, side="right") - 1
+    band = _band_index(distance, edges)
     figures = {}
     for i, (low, high) in enumerate(zip(edges[:-1], edges[1:])):
         members = band == i
@@ -200,7 +200,7 @@ def lidar_point_band_figures(distance: np.ndarray, lidar_points: np.ndarray,
         distance: (N,) xy distance to the ego, metres (inf without a LIDAR_TOP key frame).
         lidar_points: (N,) ``num_lidar_pts``.
     """
-    band = np.minimum(np.searchsorted(np.asarray(edges), distance, side="right") - 1, len(edges) - 2)  # inf: last
+    band = np.minimum(_band_index(distance, edges), len(edges) - 2)  # inf: the last band
     total = max(len(distance), 1)
     figures = {}
     for i, (low, high) in enumerate(zip(edges[:-1], edges[1:])):
@@ -239,7 +239,7 @@ def class_range_figures(classes: np.ndarray, distance: np.ndarray, n_samples: in
     in_range = evaluated & (distance < limit)
     keyframes = max(n_samples, 1)
     edges = CLASS_RANGE_BANDS_M
-    band = np.searchsorted(np.asarray(edges), distance[in_range], side="right") - 1
+    band = _band_index(distance[in_range], edges)
     return {
         "share_in_class_range": _share(in_range[evaluated]),
         "per_keyframe_in_class_range": float(in_range.sum() / keyframes),
@@ -325,6 +325,12 @@ def _distribution(values: np.ndarray) -> dict:
         "p90": float(np.percentile(values, 90)),
         "max": int(np.max(values)),
     }
+
+
+def _band_index(distance: np.ndarray, edges: tuple[float, ...]) -> np.ndarray:
+    """(N,) index i of the band [edges[i], edges[i + 1]) holding each distance; -1 below the
+    first edge, len(edges) - 1 at or beyond the last."""
+    return np.searchsorted(np.asarray(edges), distance, side="right") - 1
 
 
 def _share(mask: np.ndarray) -> float | None:
