@@ -221,7 +221,9 @@ def class_range_figures(classes: np.ndarray, distance: np.ndarray, n_samples: in
     class's boxes inside its class range (ego distance strictly below it, as the devkit
     filters), those boxes per keyframe, how the in-range boxes spread over distance, how
     many of them hold no LiDAR point, no radar return, or neither (the devkit drops the last),
-    and how visible they are (nuScenes' published visibility shares are of in-range boxes).
+    how visible they are (nuScenes' published visibility shares are of in-range boxes), and how
+    many of each visibility level hold neither (how closely the labelled visibility follows
+    what the sensors saw).
 
     Args:
         classes: (N,) detection class of each annotation, "" for one that is not evaluated.
@@ -240,6 +242,7 @@ def class_range_figures(classes: np.ndarray, distance: np.ndarray, n_samples: in
     keyframes = max(n_samples, 1)
     edges = CLASS_RANGE_BANDS_M
     band = _band_index(distance[in_range], edges)
+    empty = (lidar_points == 0) & (radar_points == 0)
     return {
         "share_in_class_range": _share(in_range[evaluated]),
         "per_keyframe_in_class_range": float(in_range.sum() / keyframes),
@@ -250,8 +253,11 @@ def class_range_figures(classes: np.ndarray, distance: np.ndarray, n_samples: in
                                  in enumerate(zip(edges[:-1], edges[1:]))},
         "share_without_lidar_points": _share(lidar_points[in_range] == 0),
         "share_without_radar_points": _share(radar_points[in_range] == 0),
-        "share_without_lidar_or_radar_points": _share((lidar_points[in_range] == 0) & (radar_points[in_range] == 0)),
+        "share_without_lidar_or_radar_points": _share(empty[in_range]),
         "visibility_shares": visibility_shares(visibility_tokens[in_range]),
+        "share_without_lidar_or_radar_points_by_visibility": {
+            level: _share(empty[in_range & (visibility_tokens == token)])
+            for token, level in VISIBILITY_LEVELS.items()},
     }
 
 
@@ -430,7 +436,8 @@ def format_summary(summary: dict) -> str:
         "  visibility of all annotations: "
         + ", ".join(f"{k} {_percent(v)}" for k, v in summary["visibility_shares"].items()),
         "  vehicle attributes: " + ", ".join(
-            f"{k.split('.')[-1]} {_percent(v)}" for k, v in summary["vehicle_attribute_shares"].items()),
+            f"{k.split('.')[-1]} {_percent(v)}" for k, v in summary["vehicle_attribute_shares"].items())
+        + _versus("vehicle_attribute_shares"),
     ]
     sweeps = summary["lidar_points_per_sweep"]
     lines.append(
@@ -486,6 +493,9 @@ def _class_range_lines(figures: dict) -> list[str]:
                  + _versus("class_range_empty_shares"))
     lines.append("    in-range visibility: " + ", ".join(
         f"{k} {_percent(v)}" for k, v in figures["visibility_shares"].items()) + _versus("visibility_shares"))
+    lines.append("    in-range boxes without LiDAR or radar by visibility: " + ", ".join(
+        f"{k} {_percent(v)}" for k, v in figures["share_without_lidar_or_radar_points_by_visibility"].items())
+        + _versus("empty_share_by_visibility"))
     return lines
 
 

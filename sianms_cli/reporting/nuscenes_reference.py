@@ -80,6 +80,14 @@ REFERENCE: dict[str, Reference] = {
         {"v0-40": 0.239, "v40-60": 0.102, "v60-80": 0.139, "v80-100": 0.521},
         "v0-40 23.9 %, v40-60 10.2 %, v60-80 13.9 %, v80-100 52.1 %",
         "third-party, val boxes within class range (reiyah-measure)"),
+    "vehicle_attribute_shares": Reference(
+        {"vehicle.moving": 2_715 / 8_934, "vehicle.parked": 4_674 / 8_934, "vehicle.stopped": 1_545 / 8_934},
+        "moving 30.4 %, parked 52.3 %, stopped 17.3 %",
+        "v1.0-mini, 2,715 / 4,674 / 1,545 of 8,934 vehicle attributes (list_attributes); no trainval table"),
+    "empty_share_by_visibility": Reference(
+        {"v0-40": 0.270, "v40-60": 0.071, "v60-80": 0.045, "v80-100": 0.032},
+        "v0-40 27.0 %, v40-60 7.1 %, v60-80 4.5 %, v80-100 3.2 %",
+        "third-party, val boxes within class range (reiyah-measure)"),
     "share_keyframes_go_straight": Reference(
         0.739, "73.9 %", "Li et al., arXiv 2312.03031, go-straight share of the planning scenarios"),
     "share_scenes_not_straight": Reference(

@@ -5,7 +5,7 @@ pavements, parking lanes, car-park bays) or a straight line (a crossing street).
 on the path at time ``t`` is ``clip(p0 + direction * (v t + a t^2 / 2), p_min, p_max)``, and
 a lane change or parking manoeuvre moves the offset by a smoothstep (``manoeuvres.py``), so
 speed and heading are consistent between keyframes by construction, and agents that share a
-lane share its speed, which keeps them from driving into one another. About a quarter of
+lane share its speed, which keeps them from driving into one another. Nearly half of
 the routes turn at a T or 4-way junction (``TURN_SHARE``), where the ego turns too.
 
 Places: streets of one or two lanes each way and arterials of three with a planted median;
@@ -104,15 +104,15 @@ sites grew more common with ROADWORKS_SHARE)."""
 
 KERB_PARKED_CATEGORIES = ("vehicle.car", "vehicle.truck", "vehicle.motorcycle", "vehicle.trailer",
                           "vehicle.construction")
-KERB_PARKED_SHARES = (0.44, 0.15, 0.07, 0.25, 0.09)
+KERB_PARKED_SHARES = (0.678, 0.128, 0.039, 0.114, 0.041)
 """What parks in a parking lane. Trailers left without their tractor and construction plant
 between jobs stand at the kerb, as the nuScenes supplement shows both classes mostly parked
-(Fig. 8; §9.5-4); their shares, taken from the cars', are set against trainval's 0.73 trailers
-and 0.43 construction vehicles per keyframe (§9.1-1): 0.16 and none before gave 0.43-0.51 and
-0.13-0.24 (the plant at roadworks only) on the README's two measured sets, so the trailers' share
-grew by 0.73 / 0.47 and the kerb makes up the plant's mean shortfall of 0.25 per keyframe. The
-long trailers took kerb slots from the motorcycles (0.34 -> 0.22 per keyframe on seed 11's 40
-scenes against trainval's 0.37), whose share grew from 0.027 to 0.07."""
+(Fig. 8; §9.5-4). Each share is set against trainval's objects per keyframe (§9.1-1: trucks
+2.59, trailers 0.73, construction vehicles 0.43, motorcycles 0.37) less what moves, stops or
+works at roadworks: the kerb-parked count a category still needs, over what a unit share parked
+on seed 13's 120 scenes once the parking lanes filled up (``KERB_GAP``, ``PARKED_SHARE``). The
+shares set for the sparse kerb before, (0.44, 0.15, 0.07, 0.25, 0.09), would have put three
+times the trailers there."""
 
 # (w, l, h) mean and std per category, nuScenes trainval (reference §9.3).
 SIZE_STATS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
@@ -178,21 +178,32 @@ GIVE_WAY_TRIES = 3  # later arrivals tried before a junction road user is left o
 # that a 40-scene set holds trainval's objects per keyframe (reference §9.2-1: cars 14.4,
 # pedestrians 6.4, trucks 2.6, buses 0.48, motorcycles 0.37, bicycles 0.35) once only the
 # keyframes between an object's first and last LiDAR sighting are annotated
-# (generate._annotation_records); the vehicle mixes are in _vehicle_category.
-LANE_GAP = 22.0  # free gap behind a vehicle in a lane
-PARKED_SHARE = 0.27  # of kerb-side slots, times (busyness + 0.3)
+# (generate._annotation_records), and so that its vehicles are parked / moving / stopped as
+# nuScenes' (52.3 / 30.4 / 17.3 % on mini, §9.5-3; no trainval table); the vehicle mixes are in
+# _vehicle_category. Until the kerb filled up, parking lanes held a vehicle every ~36 m
+# (0.27 x (busyness + 0.3) of slots 0.8 m + exp(4 m) apart) and 12 % of lanes were held up,
+# which left seed 11's 40 scenes at 34.1 % parked, 53.6 % moving and 12.3 % stopped.
+LANE_GAP = 30.0  # free gap behind a vehicle in a lane
+HELD_UP_LANE_SHARE = 0.38
+"""Lanes beside the ego's whose traffic stands (queued at a light, in a jam); their vehicles keep
+the lane's gaps, a simplification of real queues, which close up."""
+PARKED_SHARE = 0.42  # of kerb-side slots, times (busyness + 0.3)
+KERB_GAP = (0.8, 1.5)
+"""Metres between the slots of a parking lane: at least 0.8 plus an exponential of mean 1.5,
+as drivers leave a metre or two to pull out of a parallel bay (our estimate; on a busy
+street's kerb the cars stand nearly end to end, and one parked car hides part of the next)."""
 RIDER_GAP = 780.0  # between riders in a bike lane
 PARKED_BICYCLE_GAP = 630.0  # between bicycles parked at one kerb (not times 1 / busyness)
 # The first rider and the first parked bicycle of a line start within one mean gap of the route's
 # start (a renewal process seen from a random point). Before, they started within a fixed 1,800 /
 # 2,400 m on routes of ~450 m, which held bicycles at 0.22 per keyframe whatever the gaps said;
 # trainval has 0.35, 59 % of them without a rider (mini attribute shares, §9.5-3).
-WALKER_GAP = 71.0  # between walkers on one walking line of a pavement
-STANDING_GAP = 100.0  # between people standing at the back of a pavement
+WALKER_GAP = 68.0  # between walkers on one walking line of a pavement
+STANDING_GAP = 95.0  # between people standing at the back of a pavement
 MOVING_SPEED = 0.2  # m/s: below this a road user counts as standing still
 DEPARTURE_STOP = 120.0  # metres from a junction where cars leaving along a crossing street stop
 WALKER_QUEUE_SPACING = 1.2  # metres between walkers waiting at a junction (2-sigma body length + gap)
-AISLE_WALKER_GAP = 50.0
+AISLE_WALKER_GAP = 48.0
 """Mean gap between people walking along one line of a car park's aisle (two lines per aisle,
 one each way): people walk to and from their cars there, 10-30 m from the road, where the
 cameras' views overlap (our estimate; nuScenes publishes no pedestrian positions). 30 m put
@@ -552,9 +563,12 @@ def _intersections(rng: np.random.Generator, route: Route, start: float, stop: f
 
 
 def _vehicle_category(rng: np.random.Generator, moving: bool, parked: bool = False) -> str:
+    """A category for a vehicle in traffic, at the kerb or stopped (in driveways, queues). Buses
+    are 8 % of moving traffic (5 % before the lanes thinned out for the parked cars, which left
+    0.29 buses per keyframe on seed 13's 120 scenes against trainval's 0.48)."""
     if moving:
         return str(rng.choice(["vehicle.car", "vehicle.truck", "vehicle.bus.rigid", "vehicle.motorcycle"],
-                              p=[0.76, 0.16, 0.05, 0.03]))
+                              p=[0.73, 0.16, 0.08, 0.03]))
     if parked:
         return str(rng.choice(KERB_PARKED_CATEGORIES, p=KERB_PARKED_SHARES))
     return str(rng.choice(["vehicle.car", "vehicle.truck", "vehicle.motorcycle"], p=[0.803, 0.17, 0.027]))
@@ -571,8 +585,8 @@ def _fill_line(rng: np.random.Generator, start: float, stop: float, gap_mean: fl
 
 def _place_lane_traffic(agents: AgentList, rng, street: Street, ego: EgoDrive, ego_lane: int, busyness: float,
                         max_speed: float) -> None:
-    """Platoons in every driving lane; the ego's lane moves with the ego, 12 % of the
-    other lanes are held up (stopped traffic), none is faster than ``max_speed`` m/s."""
+    """Platoons in every driving lane; the ego's lane moves with the ego, ``HELD_UP_LANE_SHARE``
+    of the other lanes are held up (stopped traffic), none is faster than ``max_speed`` m/s."""
     section = street.section
     ego_travel = ego.speed * SCENE_SECONDS + 0.5 * ego.accel * SCENE_SECONDS**2
     for direction in (+1, -1):
@@ -581,7 +595,8 @@ def _place_lane_traffic(agents: AgentList, rng, street: Street, ego: EgoDrive, e
             if ego_lane_here:
                 speed, accel = ego.speed, ego.accel
             else:
-                speed = float(np.clip(rng.normal(6.6, 2.5), 0.0, max_speed)) if rng.random() > 0.12 else 0.0
+                held_up = rng.random() < HELD_UP_LANE_SHARE
+                speed = 0.0 if held_up else float(np.clip(rng.normal(6.6, 2.5), 0.0, max_speed))
                 accel = 0.0
             travel = speed * SCENE_SECONDS + 0.5 * accel * SCENE_SECONDS**2
             # Cover what the ego sees during its drive, upstream far enough that traffic
@@ -621,7 +636,7 @@ def _place_parked_vehicles(agents: AgentList, rng, street: Street, busyness: flo
                 # Pulled in to the kerb, so wide vans and trucks stay clear of the bike lane.
                 offset = side * (section.kerb - size[0] / 2 - float(rng.uniform(0.1, 0.3)))
                 agents.add(category, size, p0=position, offset=offset, direction=direction, yaw_offset=float(rng.normal(0.0, 0.03)), parked=True)
-            position += size[1] / 2 + 0.8 + float(rng.exponential(4.0))
+            position += size[1] / 2 + KERB_GAP[0] + float(rng.exponential(KERB_GAP[1]))
 
 
 def _turn_spans(street: Street) -> np.ndarray:

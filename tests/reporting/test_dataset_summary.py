@@ -63,6 +63,10 @@ def test_class_range_figures_use_the_devkit_strict_range_and_the_val_bands():
     assert figures["share_without_lidar_or_radar_points"] == 1 / 4
     assert set(REFERENCE["class_range_empty_shares"].value) <= set(figures)  # the reference names our figures
     assert figures["visibility_shares"] == {"v0-40": 1 / 4, "v40-60": 1 / 4, "v60-80": 1 / 4, "v80-100": 1 / 4}
+    # the only empty in-range box (5 m car) is v0-40; the out-of-range v0-40 boxes do not count
+    assert figures["share_without_lidar_or_radar_points_by_visibility"] == {
+        "v0-40": 1.0, "v40-60": 0.0, "v60-80": 0.0, "v80-100": 0.0}
+    assert set(REFERENCE["empty_share_by_visibility"].value) == set(figures["visibility_shares"])
 
 
 def test_lidar_points_by_distance_split_the_mean():
@@ -82,6 +86,9 @@ def test_published_class_range_figures_add_up():
     assert sum(v for k, v in per_keyframe.items() if k != "all") == pytest.approx(per_keyframe["all"], rel=0.01)
     assert per_keyframe["car"] == pytest.approx(9.9, abs=0.05)  # the reference's stated cars within 50 m
     assert sum(REFERENCE["class_range_distance_band_shares"].value.values()) == pytest.approx(1.0)
+    attributes = REFERENCE["vehicle_attribute_shares"].value
+    assert sum(attributes.values()) == pytest.approx(1.0)
+    assert round(100 * attributes["vehicle.parked"], 1) == 52.3  # the reference's stated mini share
 
 
 def test_azimuth_histogram_and_fore_aft_share():
