@@ -220,10 +220,10 @@ def class_range_figures(classes: np.ndarray, distance: np.ndarray, n_samples: in
     """How much of what is annotated the detection benchmark evaluates: the share of each
     class's boxes inside its class range (ego distance strictly below it, as the devkit
     filters), those boxes per keyframe, how the in-range boxes spread over distance, how
-    many of them hold no LiDAR point, no radar return, or neither (the devkit drops the last),
-    how visible they are (nuScenes' published visibility shares are of in-range boxes), and how
-    many of each visibility level hold neither (how closely the labelled visibility follows
-    what the sensors saw).
+    many of them hold no LiDAR point, no radar return, or neither (the devkit drops the last;
+    also per class, per distance band and per visibility level: how closely the labelled
+    visibility follows what the sensors saw), and how visible they are (nuScenes' published
+    visibility shares are of in-range boxes).
 
     Args:
         classes: (N,) detection class of each annotation, "" for one that is not evaluated.
@@ -247,10 +247,14 @@ def class_range_figures(classes: np.ndarray, distance: np.ndarray, n_samples: in
         "share_in_class_range": _share(in_range[evaluated]),
         "per_keyframe_in_class_range": float(in_range.sum() / keyframes),
         "by_class": {name: {"share_in_class_range": _share(in_range[member]),
-                            "per_keyframe_in_class_range": float(np.sum(in_range[member]) / keyframes)}
+                            "per_keyframe_in_class_range": float(np.sum(in_range[member]) / keyframes),
+                            "share_without_lidar_or_radar_points": _share(empty[in_range & member])}
                      for name, member in members.items() if member.any()},
         "distance_band_shares": {f"{low:g}-{high:g}": _share(band == i) for i, (low, high)
                                  in enumerate(zip(edges[:-1], edges[1:]))},
+        "share_without_lidar_or_radar_points_by_distance_band": {
+            f"{low:g}-{high:g}": _share(empty[in_range][band == i]) for i, (low, high)
+            in enumerate(zip(edges[:-1], edges[1:]))},
         "share_without_lidar_points": _share(lidar_points[in_range] == 0),
         "share_without_radar_points": _share(radar_points[in_range] == 0),
         "share_without_lidar_or_radar_points": _share(empty[in_range]),
@@ -472,16 +476,18 @@ def _class_range_lines(figures: dict) -> list[str]:
     """What the detection benchmark sees of the annotations: its class ranges."""
     share = REFERENCE["share_in_class_range"].value
     per_keyframe = REFERENCE["per_keyframe_in_class_range"].value
+    empty = REFERENCE["empty_share_by_class"].value
     lines = [
         f"  inside the devkit's class ranges: {_percent(figures['share_in_class_range'])} of the evaluated boxes"
         + _versus("share_in_class_range"),
         f"    per keyframe: {figures['per_keyframe_in_class_range']:.1f}" + _versus("per_keyframe_in_class_range"),
-        f"    {'class':<22} {'in range':>9} {'per keyframe':>13} | nuScenes",
+        f"    {'class':<22} {'in range':>9} {'per keyframe':>13} {'empty':>7}" + _versus("empty_share_by_class"),
     ]
     for name, values in figures["by_class"].items():
         lines.append(f"    {name:<22} {_percent(values['share_in_class_range']):>9} "
-                     f"{values['per_keyframe_in_class_range']:>13.2f} | {100 * share[name]:.0f} %, "
-                     f"{per_keyframe[name]:.2f}")
+                     f"{values['per_keyframe_in_class_range']:>13.2f} "
+                     f"{_percent(values['share_without_lidar_or_radar_points']):>7} | {100 * share[name]:.0f} %, "
+                     f"{per_keyframe[name]:.2f}, {100 * empty[name]:.1f} %")
     bands = figures["distance_band_shares"]
     lines.append(f"    in-range boxes by distance {' / '.join(bands)} m: "
                  + " / ".join(_percent(value) for value in bands.values())
@@ -491,6 +497,9 @@ def _class_range_lines(figures: dict) -> list[str]:
                      "share_without_lidar_points", "share_without_radar_points",
                      "share_without_lidar_or_radar_points"))
                  + _versus("class_range_empty_shares"))
+    empty_by_band = figures["share_without_lidar_or_radar_points_by_distance_band"]
+    lines.append(f"    in-range boxes without LiDAR or radar by distance {' / '.join(empty_by_band)} m: "
+                 + " / ".join(_percent(v) for v in empty_by_band.values()) + _versus("empty_share_by_distance_band"))
     lines.append("    in-range visibility: " + ", ".join(
         f"{k} {_percent(v)}" for k, v in figures["visibility_shares"].items()) + _versus("visibility_shares"))
     lines.append("    in-range boxes without LiDAR or radar by visibility: " + ", ".join(

@@ -84,6 +84,14 @@ REFERENCE: dict[str, Reference] = {
         {"vehicle.moving": 2_715 / 8_934, "vehicle.parked": 4_674 / 8_934, "vehicle.stopped": 1_545 / 8_934},
         "moving 30.4 %, parked 52.3 %, stopped 17.3 %",
         "v1.0-mini, 2,715 / 4,674 / 1,545 of 8,934 vehicle attributes (list_attributes); no trainval table"),
+    "empty_share_by_distance_band": Reference(
+        {"0-20": 0.040, "20-30": 0.100, "30-40": 0.138, "40-50": 0.198},
+        "4.0 / 10.0 / 13.8 / 19.8 %", "third-party, val boxes within class range (reiyah-measure)"),
+    "empty_share_by_class": Reference(
+        {"traffic_cone": 0.154, "bicycle": 0.110, "car": 0.109, "pedestrian": 0.085, "motorcycle": 0.077,
+         "barrier": 0.060, "construction_vehicle": 0.054, "truck": 0.052, "trailer": 0.047, "bus": 0.011},
+        "in range, per keyframe and empty share per class below; empty: in-range boxes without LiDAR or radar",
+        "third-party, val boxes within class range (reiyah-measure)"),
     "empty_share_by_visibility": Reference(
         {"v0-40": 0.270, "v40-60": 0.071, "v60-80": 0.045, "v80-100": 0.032},
         "v0-40 27.0 %, v40-60 7.1 %, v60-80 4.5 %, v80-100 3.2 %",

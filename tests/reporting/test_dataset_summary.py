@@ -51,9 +51,12 @@ def test_class_range_figures_use_the_devkit_strict_range_and_the_val_bands():
     assert figures["share_in_class_range"] == 4 / 7  # the unevaluated box counts nowhere
     assert figures["per_keyframe_in_class_range"] == 2.0
     assert figures["by_class"] == {
-        "car": {"share_in_class_range": 0.5, "per_keyframe_in_class_range": 1.0},
-        "pedestrian": {"share_in_class_range": 0.5, "per_keyframe_in_class_range": 0.5},
-        "barrier": {"share_in_class_range": 1.0, "per_keyframe_in_class_range": 0.5},
+        "car": {"share_in_class_range": 0.5, "per_keyframe_in_class_range": 1.0,
+                "share_without_lidar_or_radar_points": 0.5},  # in range: 5 m (empty), 49.99 m (radar)
+        "pedestrian": {"share_in_class_range": 0.5, "per_keyframe_in_class_range": 0.5,
+                       "share_without_lidar_or_radar_points": 0.0},  # the empty one at 40 m is out of range
+        "barrier": {"share_in_class_range": 1.0, "per_keyframe_in_class_range": 0.5,
+                    "share_without_lidar_or_radar_points": 0.0},
     }
     # in range: 5 (0-20), 25 (20-30), 39 (30-40), 49.99 (40-50)
     assert figures["distance_band_shares"] == {"0-20": 0.25, "20-30": 0.25, "30-40": 0.25, "40-50": 0.25}
@@ -63,6 +66,10 @@ def test_class_range_figures_use_the_devkit_strict_range_and_the_val_bands():
     assert figures["share_without_lidar_or_radar_points"] == 1 / 4
     assert set(REFERENCE["class_range_empty_shares"].value) <= set(figures)  # the reference names our figures
     assert figures["visibility_shares"] == {"v0-40": 1 / 4, "v40-60": 1 / 4, "v60-80": 1 / 4, "v80-100": 1 / 4}
+    assert figures["share_without_lidar_or_radar_points_by_distance_band"] == {
+        "0-20": 1.0, "20-30": 0.0, "30-40": 0.0, "40-50": 0.0}
+    assert set(REFERENCE["empty_share_by_distance_band"].value) == set(figures["distance_band_shares"])
+    assert set(REFERENCE["empty_share_by_class"].value) == set(REFERENCE["share_in_class_range"].value) - {"all"}
     # the only empty in-range box (5 m car) is v0-40; the out-of-range v0-40 boxes do not count
     assert figures["share_without_lidar_or_radar_points_by_visibility"] == {
         "v0-40": 1.0, "v40-60": 0.0, "v60-80": 0.0, "v80-100": 0.0}
