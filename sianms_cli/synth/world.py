@@ -186,7 +186,7 @@ GIVE_WAY_TRIES = 3  # later arrivals tried before a junction road user is left o
 # which left seed 11's 40 scenes at 34.1 % parked, 53.6 % moving and 12.3 % stopped.
 LANE_GAP = 30.0  # free gap behind a vehicle in a lane
 HELD_UP_LANE_SHARE = 0.38
-"""Lanes beside the ego's whose traffic stands (queued at a light, in a jam); their vehicles keep
+"""Lanes other than the ego's whose traffic stands (queued at a light, in a jam); their vehicles keep
 the lane's gaps, a simplification of real queues, which close up."""
 PARKED_SHARE = 0.42  # of kerb-side slots, times (busyness + 0.3)
 KERB_GAP = (0.8, 1.5)
