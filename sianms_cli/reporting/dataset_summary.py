@@ -242,6 +242,7 @@ def class_range_figures(classes: np.ndarray, distance: np.ndarray, n_samples: in
     keyframes = max(n_samples, 1)
     edges = CLASS_RANGE_BANDS_M
     band = _band_index(distance[in_range], edges)
+    band_names = [f"{low:g}-{high:g}" for low, high in zip(edges[:-1], edges[1:])]
     empty = (lidar_points == 0) & (radar_points == 0)
     return {
         "share_in_class_range": _share(in_range[evaluated]),
@@ -250,11 +251,9 @@ def class_range_figures(classes: np.ndarray, distance: np.ndarray, n_samples: in
                             "per_keyframe_in_class_range": float(np.sum(in_range[member]) / keyframes),
                             "share_without_lidar_or_radar_points": _share(empty[in_range & member])}
                      for name, member in members.items() if member.any()},
-        "distance_band_shares": {f"{low:g}-{high:g}": _share(band == i) for i, (low, high)
-                                 in enumerate(zip(edges[:-1], edges[1:]))},
+        "distance_band_shares": {name: _share(band == i) for i, name in enumerate(band_names)},
         "share_without_lidar_or_radar_points_by_distance_band": {
-            f"{low:g}-{high:g}": _share(empty[in_range][band == i]) for i, (low, high)
-            in enumerate(zip(edges[:-1], edges[1:]))},
+            name: _share(empty[in_range][band == i]) for i, name in enumerate(band_names)},
         "share_without_lidar_points": _share(lidar_points[in_range] == 0),
         "share_without_radar_points": _share(radar_points[in_range] == 0),
         "share_without_lidar_or_radar_points": _share(empty[in_range]),
