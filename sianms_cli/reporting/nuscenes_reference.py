@@ -98,8 +98,6 @@ REFERENCE: dict[str, Reference] = {
         "third-party, val boxes within class range (reiyah-measure)"),
     "share_keyframes_go_straight": Reference(
         0.739, "73.9 %", "Li et al., arXiv 2312.03031, go-straight share of the planning scenarios"),
-    "share_scenes_not_straight": Reference(
-        1 - 0.739, "~26 %", "derived from Li et al., arXiv 2312.03031"),
     "scene_share_night": Reference(
         0.116, "11.6 %", "v1.0-trainval scene descriptions saying night, ~99 of 850; as stated in issue 11, "
         "not re-counted here"),

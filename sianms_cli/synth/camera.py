@@ -128,18 +128,14 @@ _SWEPT_EDGES = np.concatenate([_BOX_EDGES, _BOX_EDGES + 8, [(i, i + 8) for i in 
 class CameraRender:
     """One rendered image.
 
-    image (H,W,3) uint8 sRGB, None when only coverage was asked for; owner_map (H,W) int32 object index of the nearest surface
+    image (H,W,3) uint8 sRGB; owner_map (H,W) int32 object index of the nearest surface
     (-1 for ground, sky and scenery); depth (H,W) float32 z-depth in the camera frame,
-    metres (inf for sky); object_pixels (n_objects,) int64 pixels each object covers with
-    nothing in front of it; visible_pixels (n_objects,) int64 pixels where it is the
-    nearest surface.
+    metres (inf for sky). `coverage_counts` counts the objects' pixels.
     """
 
-    image: np.ndarray | None
+    image: np.ndarray
     owner_map: np.ndarray
     depth: np.ndarray
-    object_pixels: np.ndarray
-    visible_pixels: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -373,9 +369,11 @@ class _Coverage:
         self.start = np.cumsum(area) - area
         self.bits = np.zeros(int(area.sum()), bool)
         # Flat bit of pixel (u, v) of part m's object: base[m] + v * row[m] + u.
-        safe = np.where((owner >= 0) & (owner < n_objects), owner, 0)
-        self.row = self.shape[safe, 1]
-        self.base = self.start[safe] - self.corner[safe, 1] * self.row - self.corner[safe, 0]
+        # Parts of uncounted owners index one extra entry of zeros (there may be no objects at all).
+        safe = np.where((owner >= 0) & (owner < n_objects), owner, n_objects)
+        self.row = np.append(self.shape[:, 1], 0)[safe]
+        corner = np.vstack([self.corner, np.zeros((1, 2), np.int64)])[safe]
+        self.base = np.append(self.start, 0)[safe] - corner[:, 1] * self.row - corner[:, 0]
         self.owner = owner
 
     def counted(self, m: int) -> bool:
@@ -396,10 +394,15 @@ class _Coverage:
         part, u, v = part[keep], u[keep].astype(np.intp), v[keep].astype(np.intp)
         self.bits[self.base[part] + v * self.row[part] + u] = True
 
-    def pixels(self) -> np.ndarray:
-        """(n_objects,) int64 covered pixels of each object."""
-        return np.array([np.count_nonzero(self.bits[s:s + r * c]) for s, (r, c) in zip(self.start, self.shape)],
-                        np.int64).reshape(self.n_objects)
+    def pixels(self, rows: slice = slice(0, None)) -> np.ndarray:
+        """(n_objects,) int64 covered pixels of each object, in the image rows `rows` (all by default)."""
+        counts = np.zeros(self.n_objects, np.int64)
+        for o, (s, (r, c)) in enumerate(zip(self.start, self.shape)):
+            top = self.corner[o, 1]
+            first, stop = max(rows.start - top, 0), r if rows.stop is None else min(rows.stop - top, r)
+            if first < stop:
+                counts[o] = np.count_nonzero(self.bits[s + first * c:s + stop * c])
+        return counts
 
 
 def _tiles(rect):
@@ -460,9 +463,9 @@ def _keep_nearest(depth, part_buf, pix, t, part) -> None:
 
 
 def _cast_parts(parts: Parts, view: _View, depth: np.ndarray, part_buf: np.ndarray,
-                n_objects: int) -> np.ndarray:
+                n_objects: int) -> _Coverage:
     """Cast every part into the flat depth (P,) float32 and part (P,) int32 buffers, in
-    place (they start with the ground); returns object_pixels (n_objects,) int64.
+    place (they start with the ground); returns the objects' coverage.
 
     Objects come first and are only culled by the ground, so that their coverage can be
     counted; scenery follows front to back, so that a part hidden by nearer ones is
@@ -494,7 +497,7 @@ def _cast_parts(parts: Parts, view: _View, depth: np.ndarray, part_buf: np.ndarr
                     window, hit = cast
                     rect = (window[1].start, window[0].start, window[1].stop - 1, window[0].stop - 1)
                     cover.block(m, rect)[...] |= hit
-    return coverage.pixels()
+    return coverage
 
 
 # --- Shadows ---------------------------------------------------------------------------------
@@ -1354,7 +1357,7 @@ def _apply_style(radiance: np.ndarray, gain: np.ndarray, noise_std: float, vigne
 
 def render_camera(parts: Parts, appearances, ground_shader, intrinsic, cam_to_world, width: int,
                   height: int, style: CameraStyle, sun_direction, n_objects: int,
-                  rng: np.random.Generator, shade: bool = True,
+                  rng: np.random.Generator,
                   casts_shadow: np.ndarray | None = None, conditions: Conditions = Conditions(),
                   motion_blur_px: float = 0.0, sky_seed: int = 0) -> CameraRender:
     """Render one camera image with its owner map and depth buffer.
@@ -1364,10 +1367,9 @@ def render_camera(parts: Parts, appearances, ground_shader, intrinsic, cam_to_wo
     ground_shader(xy (P,2) global metres) -> (P,3) linear albedo in [0, 1];
     intrinsic (3,3) pinhole K; cam_to_world (4,4) camera (OpenCV axes) to global;
     width, height in pixels; style: the camera's `CameraStyle`; sun_direction (3,) towards
-    the sun, global frame (normalised here); n_objects: length of the per-object counts
-    (owners outside [0, n_objects) are not counted); rng: draws the per-frame white-balance
-    drift, the lens drops and the sensor noise; shade: False skips shading (image None)
-    when only the coverage counts are needed; casts_shadow (M,) bool: the parts that cast
+    the sun, global frame (normalised here); n_objects: the number of objects (owners 0 ..
+    n_objects - 1); rng: draws the per-frame white-balance
+    drift, the lens drops and the sensor noise; casts_shadow (M,) bool: the parts that cast
     shadows (default: the objects', owner >= 0; street clutter too where the caller says
     so); conditions: night (no sun, emitting lamps, street-light pools, more noise) and
     rain (overcast, wet road, drops on the lens); motion_blur_px: length in pixels of the
@@ -1380,28 +1382,57 @@ def render_camera(parts: Parts, appearances, ground_shader, intrinsic, cam_to_wo
     view = _make_view(np.asarray(intrinsic, np.float64), np.asarray(cam_to_world, np.float64), width, height)
     sun = np.asarray(sun_direction, np.float64)
     sun = sun / np.linalg.norm(sun)
-
-    ray_len = _ray_lengths(view)
-    depth = _ground_depth(view, ray_len)
-    part_buf = np.full(width * height, -1, np.int32)
-    object_pixels = np.zeros(n_objects, np.int64)
-    if len(parts):
-        object_pixels = _cast_parts(parts, view, depth, part_buf, n_objects)
-
-    part_buf = part_buf.astype(np.intp)  # numpy gathers by intp indices several times faster
-    owner_map = np.take(np.append(parts.owner, np.int32(-1)), part_buf)  # part -1: owner -1
-    counted = (owner_map >= 0) & (owner_map < n_objects)
-    visible_pixels = np.bincount(owner_map[counted], minlength=n_objects)[:n_objects].astype(np.int64)
-    if not shade:
-        return CameraRender(image=None, owner_map=owner_map.reshape(height, width),
-                            depth=depth.reshape(height, width), object_pixels=object_pixels,
-                            visible_pixels=visible_pixels)
-
+    depth, part_buf, _, ray_len = _cast_view(parts, view, n_objects=0)  # nothing to count
+    owner_map = _owner_map(parts, part_buf)
     image = _render_image(parts, appearances, ground_shader, view, style, sun, n_objects, rng, casts_shadow,
                           conditions, motion_blur_px, sky_seed, depth, part_buf, ray_len)
-    return CameraRender(image=image, owner_map=owner_map.reshape(height, width),
-                        depth=depth.reshape(height, width), object_pixels=object_pixels,
-                        visible_pixels=visible_pixels)
+    return CameraRender(image=image, owner_map=owner_map.reshape(height, width), depth=depth.reshape(height, width))
+
+
+@dataclass(frozen=True)
+class CoverageCounts:
+    """Pixel counts (n_objects,) int64 of each object in one camera: visible, where it is the
+    nearest surface in the image; in_image, where it covers the image with only the ground in
+    front of it; whole, the same over the image extended by `pad_rows` rows above and below, so
+    that what the image's top and bottom edges cut off an object counts too."""
+
+    visible: np.ndarray
+    in_image: np.ndarray
+    whole: np.ndarray
+
+
+def coverage_counts(parts: Parts, intrinsic, cam_to_world, width: int, height: int, n_objects: int,
+                    pad_rows: int = 0) -> CoverageCounts:
+    """Cast (no shading) the camera of `render_camera`'s intrinsic, cam_to_world, width and
+    height over a canvas `pad_rows` taller at the top and at the bottom, and count each
+    object's pixels (owners outside [0, n_objects) are not counted)."""
+    padded = np.array(intrinsic, np.float64)
+    padded[1, 2] += pad_rows
+    view = _make_view(padded, np.asarray(cam_to_world, np.float64), width, height + 2 * pad_rows)
+    _, part_buf, coverage, _ = _cast_view(parts, view, n_objects)
+    owner = _owner_map(parts, part_buf[pad_rows * width:(pad_rows + height) * width])
+    counted = (owner >= 0) & (owner < n_objects)
+    visible = np.bincount(owner[counted], minlength=n_objects)[:n_objects].astype(np.int64)
+    return CoverageCounts(visible=visible, in_image=coverage.pixels(slice(pad_rows, pad_rows + height)),
+                          whole=coverage.pixels())
+
+
+def _cast_view(parts: Parts, view: _View, n_objects: int) -> tuple[np.ndarray, np.ndarray, _Coverage, np.ndarray]:
+    """The ground and every part cast into one view: depth (P,) float32, part_buf (P,) intp
+    (-1: ground or sky), the objects' coverage and the rays' lengths (P,) float32."""
+    ray_len = _ray_lengths(view)
+    depth = _ground_depth(view, ray_len)
+    part_buf = np.full(view.width * view.height, -1, np.int32)
+    if len(parts):
+        coverage = _cast_parts(parts, view, depth, part_buf, n_objects)
+    else:
+        coverage = _Coverage(parts.owner, np.zeros((0, 4), np.int64), np.zeros(0, np.intp), n_objects)
+    return depth, part_buf.astype(np.intp), coverage, ray_len  # numpy gathers by intp several times faster
+
+
+def _owner_map(parts: Parts, part_buf: np.ndarray) -> np.ndarray:
+    """The owner (P,) int32 of each pixel's nearest part (-1 for ground, sky and scenery)."""
+    return np.take(np.append(parts.owner, np.int32(-1)), part_buf)  # part -1: owner -1
 
 
 def _render_image(parts, appearances, ground_shader, view: _View, style: CameraStyle, sun: np.ndarray,

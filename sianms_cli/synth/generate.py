@@ -59,7 +59,7 @@ from sianms_cli.nuscenes.writer import DatasetWriter, attribute_token, category_
 from sianms_cli.processes import worker_pool
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.synth.appearance import camera_style, sample_appearance
-from sianms_cli.synth.camera import motion_blur_length, render_camera
+from sianms_cli.synth.camera import CameraRender, CoverageCounts, coverage_counts, motion_blur_length, render_camera
 from sianms_cli.synth.clutter import clutter_parts, road_user_boxes
 from sianms_cli.synth.conditions import Conditions, civil_dusk_hour, sample_conditions
 from sianms_cli.synth.devkit_count import boxes_in_sensor_frame, count_points_in_boxes
@@ -109,7 +109,14 @@ against val, letting them start and end tracks added 16 % more boxes to seed 13'
 (cars 13.8 -> 15.9, pedestrians 6.4 -> 7.4 per keyframe; trainval 14.5 and 6.5), nearly all
 beyond the class ranges."""
 SHAPE_MARGIN = 0.04  # annotated boxes enclose the object's surface with this margin (m)
-VISIBILITY_SCALE = 0.125  # image scale of the renders that measure visibility with --sensors none
+VISIBILITY_SCALE = 0.125  # image scale of the coverage casts that measure visibility (either --sensors)
+VISIBILITY_PAD = 1.0
+"""Rows added above and below each coverage cast, in image heights. nuScenes' visibility is the
+share of the whole object visible in the six images (nuscenes-devkit schema: "fraction of
+annotation visible in all 6 images"); what lies above or below every camera's field of view, as
+the lower part of a car alongside the ego does, is not visible. The padded canvas reaches ~47 deg
+above and below the axes of the five 70-deg cameras (the back camera's: ~60), beyond which only
+the tops of vehicles within a metre or two of a camera would reach."""
 VISIBILITY_BINS = (0.4, 0.6, 0.8)  # upper bounds of visibility tokens "1", "2", "3"
 AZIMUTH_STEPS = 1084  # HDL-32E columns per revolution at 20 Hz (see lidar.py)
 SWEEPS_BETWEEN_KEYFRAMES = int(round(LIDAR_HZ / KEYFRAME_HZ)) - 1  # 9 non-key-frame LiDAR sweeps
@@ -399,7 +406,8 @@ class _Frame:
     rotation: np.ndarray  # (N,4) yaw quaternions, the annotation records' values
     attributes: np.ndarray  # (N,) names
     lidar_points: np.ndarray  # (N,) int64 points inside each box
-    visibility: np.ndarray  # (N,) visible fraction across all cameras, NaN when unseen
+    visibility: np.ndarray  # (N,) visible share of the whole object across all cameras, NaN when unseen
+    unoccluded: np.ndarray  # (N,) share of its pixels in the images not hidden by anything nearer, NaN when unseen
 
 
 def _scene_records(staging: Path, config: SynthConfig, index: int, name: str,
@@ -621,24 +629,26 @@ class _SceneSensing:
         lidar_points[near] = self._num_lidar_pts(scan.points, records[LIDAR_CHANNEL][1], center[near],
                                                  plan.agents.size[near], rotation[near])
 
-        visible = np.zeros(len(center))
-        covered = np.zeros(len(center))
+        visible, in_image, whole = np.zeros(len(center)), np.zeros(len(center)), np.zeros(len(center))
         for channel in CAMERA_CHANNELS:
             camera_time_us = timestamp + CAMERA_TRIGGER_OFFSET_US[channel]
             t_camera = (camera_time_us - self.start_us) / 1e6
             center_c, yaw_c, _ = plan.agents.pose(plan.route, t_camera)
             ego_c = self._ego_to_global(t_camera)
-            render = self._render(channel, self._parts_at(center_c, yaw_c, near), ego_c, image_size)
-            visible += render.visible_pixels
-            covered += render.object_pixels
+            parts = self._parts_at(center_c, yaw_c, near)
+            counts = self._coverage(channel, parts, ego_c)
+            visible += counts.visible
+            in_image += counts.in_image
+            whole += counts.whole
+            image = self._render(channel, parts, ego_c).image if self.config.sensors == "all" else None
             records[channel] = self._sample_data(channel, sample_token, camera_time_us, ego_c,
-                                                 calibration_tokens, image_size,
-                                                 render.image if self.config.sensors == "all" else None)
+                                                 calibration_tokens, image_size, image)
         with np.errstate(invalid="ignore", divide="ignore"):
-            visibility = np.where(covered > 0, visible / covered, np.nan)
+            visibility = np.where(whole > 0, visible / whole, np.nan)
+            unoccluded = np.where(in_image > 0, visible / in_image, np.nan)
         ego_xy = (center[:, :2] - ego_to_global[:2, 3]) @ ego_to_global[:2, :2]
         frame = _Frame(distance < ANNOTATION_RADIUS, ego_xy, center, yaw, rotation,
-                       plan.agents.attributes(speed), lidar_points, visibility)
+                       plan.agents.attributes(speed), lidar_points, visibility, unoccluded)
         return frame, records
 
     def sense_sweep(self, k: int, j: int, sample_token: str, calibration_tokens: dict) -> tuple[dict, dict]:
@@ -721,21 +731,30 @@ class _SceneSensing:
         )
         return concat_parts([posed, self.scenery])
 
-    def _render(self, channel: str, parts: Parts, ego_to_global: np.ndarray, image_size):
+    def _cam_to_global(self, channel: str, ego_to_global: np.ndarray) -> np.ndarray:
         calibration = self.true_calibration[channel]
-        cam_to_global = ego_to_global @ make_transform(calibration.rotation, calibration.translation)
-        scale = self.config.image_scale if self.config.sensors == "all" else VISIBILITY_SCALE
+        return ego_to_global @ make_transform(calibration.rotation, calibration.translation)
+
+    def _coverage(self, channel: str, parts: Parts, ego_to_global: np.ndarray) -> CoverageCounts:
+        """The objects' pixels in one camera, at VISIBILITY_SCALE with VISIBILITY_PAD."""
+        width, height = round(FULL_IMAGE_SIZE[0] * VISIBILITY_SCALE), round(FULL_IMAGE_SIZE[1] * VISIBILITY_SCALE)
+        return coverage_counts(parts, self.true_calibration[channel].intrinsic(VISIBILITY_SCALE),
+                               self._cam_to_global(channel, ego_to_global), width, height, len(self.appearances),
+                               pad_rows=round(VISIBILITY_PAD * height))
+
+    def _render(self, channel: str, parts: Parts, ego_to_global: np.ndarray) -> CameraRender:
+        cam_to_global = self._cam_to_global(channel, ego_to_global)
+        scale = self.config.image_scale
         width, height = round(FULL_IMAGE_SIZE[0] * scale), round(FULL_IMAGE_SIZE[1] * scale)
         casts_shadow = np.concatenate([np.ones(len(parts.owner) - len(self.scenery_casts_shadow), bool),
                                        self.scenery_casts_shadow])
-        intrinsic = calibration.intrinsic(scale)
+        intrinsic = self.true_calibration[channel].intrinsic(scale)
         # The ego's planned speed along its heading (its acceleration is small over a scene).
         ego_velocity = ego_to_global[:3, 0] * self.plan.ego.speed
         return render_camera(parts, self.appearances, self.plan.street.ground_albedo,
                              intrinsic, cam_to_global, width, height,
                              self.styles[channel], self.sun, len(self.appearances), self.camera_rng,
-                             shade=self.config.sensors == "all", casts_shadow=casts_shadow,
-                             conditions=self.conditions, sky_seed=self.start_us,
+                             casts_shadow=casts_shadow, conditions=self.conditions, sky_seed=self.start_us,
                              motion_blur_px=motion_blur_length(intrinsic, cam_to_global, ego_velocity,
                                                                self.conditions.night))
 
@@ -820,7 +839,7 @@ def _annotation_records(plan: ScenePlan, frames: list[_Frame], sample_tokens: li
     ego_xy = np.stack([f.ego_xy for f in frames])
     near = np.hypot(ego_xy[..., 0], ego_xy[..., 1]) < SINGLE_POINT_SIGHTING_RANGE
     strength = returns_at_10_m([SHAPE_KIND[c] for c in plan.agents.category])
-    radar = radar_returns(radar_rng, strength, ego_xy, np.stack([f.visibility for f in frames]))
+    radar = radar_returns(radar_rng, strength, ego_xy, np.stack([f.unoccluded for f in frames]))
     seen = annotated & (points >= np.where(near, 1, 2))
     k = np.arange(len(frames))[:, None]
     first = np.where(seen, k, len(frames)).min(axis=0)

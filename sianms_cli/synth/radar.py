@@ -78,18 +78,18 @@ def returns_at_10_m(kinds: np.ndarray) -> np.ndarray:
     return np.array([RETURNS_AT_10_M[name] for name in names], dtype=np.float64)[inverse.reshape(-1)]
 
 
-def expected_returns(strength: np.ndarray, xy: np.ndarray, visibility: np.ndarray) -> np.ndarray:
+def expected_returns(strength: np.ndarray, xy: np.ndarray, unoccluded: np.ndarray) -> np.ndarray:
     """(...,) mean radar returns of objects of :func:`returns_at_10_m` ``strength`` at ego-frame
-    ``xy`` (..., 2), with ``visibility`` (...,) their visible fraction across the cameras (NaN: not
-    imaged)."""
+    ``xy`` (..., 2), with ``unoccluded`` (...,) the share of their pixels in the cameras' images
+    that nothing nearer hides (NaN: not imaged)."""
     distance = np.maximum(np.hypot(xy[..., 0], xy[..., 1]), NEAREST_RANGE)
-    visible = np.clip(np.nan_to_num(visibility, nan=0.0), 0.0, 1.0)
+    visible = np.clip(np.nan_to_num(unoccluded, nan=0.0), 0.0, 1.0)
     exposure = OCCLUDED_EXPOSURE + (1.0 - OCCLUDED_EXPOSURE) * visible
     mean = RETURNS_SCALE * strength * (10.0 / distance) ** RANGE_EXPONENT * exposure
     return np.where(in_radar_field(xy), mean, 0.0)
 
 
 def radar_returns(rng: np.random.Generator, strength: np.ndarray, xy: np.ndarray,
-                  visibility: np.ndarray) -> np.ndarray:
+                  unoccluded: np.ndarray) -> np.ndarray:
     """(...,) int64 radar returns drawn for each object (see :func:`expected_returns`)."""
-    return rng.poisson(expected_returns(strength, xy, visibility)).astype(np.int64)
+    return rng.poisson(expected_returns(strength, xy, unoccluded)).astype(np.int64)

@@ -3,7 +3,7 @@ import pytest
 
 from sianms_cli.synth import camera, shapes
 from sianms_cli.synth.appearance import CameraStyle, camera_style, sample_appearance
-from sianms_cli.synth.camera import render_camera
+from sianms_cli.synth.camera import coverage_counts, render_camera
 from sianms_cli.synth.raycast import intersect_ground, intersect_parts
 from sianms_cli.synth.shapes import Parts, concat_parts
 
@@ -29,6 +29,10 @@ def render(parts, n_objects=1, style=None, seed=0):
                          SUN, n_objects, np.random.default_rng(seed))
 
 
+def counts(parts, n_objects=1, pad_rows=0):
+    return coverage_counts(parts, K, CAM_TO_WORLD, W, H, n_objects, pad_rows)
+
+
 def predicted_front_face_mask(x_face, y_lo, y_hi, z_lo, z_hi):
     """Pixels whose centre projects inside the face x = x_face, y in [y_lo, y_hi], z in [z_lo, z_hi]."""
     u = np.arange(W) + 0.5
@@ -44,28 +48,31 @@ def test_cube_covers_exactly_its_projected_pixels():
     # Face edges project to u, v in {68.89, 91.11}: columns and rows 69..90.
     assert expected.sum() == 22 * 22
     np.testing.assert_array_equal(out.owner_map == 0, expected)
-    assert out.object_pixels[0] == 484 and out.visible_pixels[0] == 484
+    pixels = counts(cube())
+    assert pixels.visible[0] == pixels.in_image[0] == pixels.whole[0] == 484
     assert out.depth[60, 80] == pytest.approx(9.0, abs=1e-5)
 
 
 def test_occluder_reduces_visible_but_not_object_pixels():
     occluder = cube(owner=1, center=(5.0, 0.5, 1.6), half=(0.2, 0.5, 1.4))
     out = render(concat_parts([cube(), occluder]), n_objects=2)
+    pixels = counts(concat_parts([cube(), occluder]), n_objects=2)
     # The occluder's face x = 4.8, y in [0, 1] spans u in [59.2, 80]: columns 59..79 hide the
     # cube's columns 69..79, leaving 90 - 80 + 1 = 11 of its 22 columns.
-    assert out.object_pixels[0] == 484
-    assert out.visible_pixels[0] == 22 * 11
+    assert pixels.in_image[0] == 484
+    assert pixels.visible[0] == 22 * 11
     occluder_mask = predicted_front_face_mask(4.8, 0.0, 1.0, 0.2, 3.0)
     assert occluder_mask.sum() == 58 * 21
-    assert out.object_pixels[1] == out.visible_pixels[1] == occluder_mask.sum()
+    assert pixels.in_image[1] == pixels.visible[1] == occluder_mask.sum()
     np.testing.assert_array_equal(out.owner_map == 1, occluder_mask)
 
 
 def test_scenery_occludes_but_is_not_counted():
     occluder = cube(owner=-1, center=(5.0, 0.5, 1.6), half=(0.2, 0.5, 1.4))
     out = render(concat_parts([cube(), occluder]), n_objects=1)
-    assert out.object_pixels[0] == 484
-    assert out.visible_pixels[0] == 242
+    pixels = counts(concat_parts([cube(), occluder]))
+    assert pixels.in_image[0] == 484
+    assert pixels.visible[0] == 242
     assert np.all(out.owner_map[out.depth < 4.9] == -1)
 
 
@@ -100,7 +107,7 @@ def test_face_turned_to_the_sun_is_brighter_than_the_face_in_shade():
 
 def test_empty_scene_renders_ground_and_sky():
     out = render(concat_parts([]), n_objects=0)
-    assert out.object_pixels.shape == (0,) and np.all(out.owner_map == -1)
+    assert counts(concat_parts([]), n_objects=0).whole.shape == (0,) and np.all(out.owner_map == -1)
     assert np.isfinite(out.depth[-1]).all() and np.isinf(out.depth[0]).all()
 
 
@@ -110,7 +117,8 @@ def test_large_part_cast_as_a_block_covers_exactly_its_projected_pixels():
     expected = predicted_front_face_mask(2.0, -1.0, 1.0, 0.5, 2.5)
     assert expected.sum() > camera._BLOCK_AREA
     np.testing.assert_array_equal(out.owner_map == 0, expected)
-    assert out.object_pixels[0] == out.visible_pixels[0] == expected.sum()
+    pixels = counts(cube(center=(3.0, 0.0, 1.5)))
+    assert pixels.in_image[0] == pixels.visible[0] == pixels.whole[0] == expected.sum()
 
 
 def street_scene(seed=0, n=40):
@@ -143,12 +151,16 @@ def test_band_tile_and_chunk_sizes_do_not_change_the_render(monkeypatch):
     parts = street_scene(seed=1)
     style = camera_style(np.random.default_rng(2))
     reference = render(parts, n_objects=5, style=style)
+    reference_counts = counts(parts, n_objects=5, pad_rows=30)
     monkeypatch.setattr(camera, "_BAND_PIXELS", 1000)
     monkeypatch.setattr(camera, "_CHUNK", 777)
     monkeypatch.setattr(camera, "_BLOCK_AREA", 50)
     small = render(parts, n_objects=5, style=style)
-    for name in ("image", "owner_map", "depth", "object_pixels", "visible_pixels"):
+    for name in ("image", "owner_map", "depth"):
         np.testing.assert_array_equal(getattr(small, name), getattr(reference, name), err_msg=name)
+    small_counts = counts(parts, n_objects=5, pad_rows=30)
+    for name in ("visible", "in_image", "whole"):
+        np.testing.assert_array_equal(getattr(small_counts, name), getattr(reference_counts, name), err_msg=name)
 
 
 def test_objects_cast_shadows_on_the_ground_and_scenery_does_not():
@@ -188,13 +200,22 @@ def test_sensor_noise_has_the_style_standard_deviation():
     assert noise.std() == pytest.approx(2.55, rel=0.1)
 
 
-def test_coverage_only_render_skips_the_image_and_keeps_the_counts():
+def test_coverage_counts_see_what_the_render_sees():
     occluded = concat_parts([cube(0, center=(10.0, 0.0, 1.5)), cube(1, center=(6.0, 0.6, 1.5), half=(0.3, 0.5, 0.5))])
-    apps = [sample_appearance("car", np.random.default_rng(i)) for i in range(2)]
-    args = (occluded, apps, flat_ground, K, CAM_TO_WORLD, W, H, CameraStyle(), np.array([0.3, 0.2, 0.9]), 2)
-    full = render_camera(*args, np.random.default_rng(0))
-    coverage = render_camera(*args, np.random.default_rng(0), shade=False)
-    assert coverage.image is None and full.image is not None
-    np.testing.assert_array_equal(coverage.owner_map, full.owner_map)
-    np.testing.assert_array_equal(coverage.visible_pixels, full.visible_pixels)
-    np.testing.assert_array_equal(coverage.object_pixels, full.object_pixels)
+    out = render(occluded, n_objects=2)
+    pixels = counts(occluded, n_objects=2)
+    np.testing.assert_array_equal(pixels.visible, np.bincount(out.owner_map[out.owner_map >= 0], minlength=2))
+    np.testing.assert_array_equal(counts(occluded, n_objects=2, pad_rows=40).visible, pixels.visible)
+
+
+def test_the_padded_canvas_counts_what_the_image_edges_cut_off():
+    """A cube 2 m ahead, its face 2 m tall: rows 9.5 .. 110.5 of the 120 fit in the image;
+    from 1.5 m up to 3.5 m the face runs 100 rows above and 0 below the centre row 60."""
+    near = cube(center=(3.0, 0.0, 2.5))  # face x = 2, z in [1.5, 3.5]: v = 60 - 100 * (z - 1.5) / 2
+    expected = predicted_front_face_mask(2.0, -1.0, 1.0, 1.5, 3.5)
+    columns = expected.any(axis=0).sum()
+    pixels = counts(near, pad_rows=H)
+    assert columns == 100
+    assert pixels.in_image[0] == pixels.visible[0] == expected.sum() == 60 * columns
+    assert pixels.whole[0] == 100 * columns  # rows -40 .. 59: the 40 above the image count too
+    assert counts(near).whole[0] == expected.sum()  # without padding, only the image

@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from sianms_cli.synth import shapes
-from sianms_cli.synth.appearance import CLUTTER_KINDS, CameraStyle, sample_appearance
-from sianms_cli.synth.camera import render_camera
+from sianms_cli.synth.appearance import CLUTTER_KINDS, sample_appearance
+from sianms_cli.synth.camera import coverage_counts
 from sianms_cli.synth.clutter import KERB_STRIP, place_clutter, road_user_boxes
 from sianms_cli.synth.lidar import scan_lidar
 from sianms_cli.synth.road import CrossSection, Intersection, Route, Street
@@ -146,15 +146,11 @@ def test_a_tree_occludes_a_car_in_the_image():
     tree = place_parts(object_parts("tree", (4.0, 4.0, 8.0), sample_appearance("tree", np.random.default_rng(0))),
                        np.array([7.0, 0.3, 4.0]), 0.0, owner=-1)
 
-    def render(parts):
-        return render_camera(parts, [sample_appearance("car", np.random.default_rng(0))],
-                             lambda xy: np.full((len(xy), 3), 0.1), K, cam_to_world, 160, 120, CameraStyle(),
-                             np.array([0.3, 0.2, 0.9]), 1, np.random.default_rng(0), shade=False)
-
-    clear, hidden = render(car), render(concat_parts([car, tree]))
-    assert clear.visible_pixels[0] > 100
-    assert hidden.object_pixels[0] == clear.object_pixels[0]
-    assert hidden.visible_pixels[0] < 0.9 * clear.visible_pixels[0]
+    clear = coverage_counts(car, K, cam_to_world, 160, 120, 1)
+    hidden = coverage_counts(concat_parts([car, tree]), K, cam_to_world, 160, 120, 1)
+    assert clear.visible[0] > 100
+    assert hidden.in_image[0] == clear.in_image[0]
+    assert hidden.visible[0] < 0.9 * clear.visible[0]
 
 
 def test_signals_stand_at_the_corners_of_a_turning_junction_once():
