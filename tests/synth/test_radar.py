@@ -69,13 +69,15 @@ def test_strength_follows_each_objects_kind():
     np.testing.assert_array_equal(returns_at_10_m(kinds), [RETURNS_AT_10_M[k] for k in kinds])
 
 
-def test_draws_are_poisson_around_the_mean_and_seeded():
-    strength = np.full(20_000, 2.0)
-    points = np.tile(_at(10.0, 0.0), (20_000, 1))
-    first = radar_returns(np.random.default_rng(5), strength, points, np.ones(20_000))
-    again = radar_returns(np.random.default_rng(5), strength, points, np.ones(20_000))
+def test_draws_are_negative_binomial_about_the_mean_and_seeded():
+    """Gamma-mixed Poisson of shape k: mean m, variance m + m^2 / k, P(0) = (1 + m / k)^-k."""
+    strength = np.full(40_000, 2.0)
+    points = np.tile(_at(10.0, 0.0), (40_000, 1))
+    first = radar_returns(np.random.default_rng(5), strength, points, np.ones(40_000))
+    again = radar_returns(np.random.default_rng(5), strength, points, np.ones(40_000))
     np.testing.assert_array_equal(first, again)
-    mean = 2.0 * radar.RETURNS_SCALE
+    mean, k = 2.0 * radar.RETURNS_SCALE, radar.RETURNS_DISPERSION
     assert first.dtype == np.int64
     assert first.mean() == pytest.approx(mean, rel=0.03)
-    assert (first == 0).mean() == pytest.approx(np.exp(-mean), abs=0.01)
+    assert first.var() == pytest.approx(mean + mean**2 / k, rel=0.08)
+    assert (first == 0).mean() == pytest.approx((1 + mean / k) ** -k, abs=0.01)
