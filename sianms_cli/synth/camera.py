@@ -463,13 +463,14 @@ def _keep_nearest(depth, part_buf, pix, t, part) -> None:
 
 
 def _cast_parts(parts: Parts, view: _View, depth: np.ndarray, part_buf: np.ndarray,
-                n_objects: int) -> _Coverage:
+                n_objects: int, scenery_rows: tuple[int, int] | None = None) -> _Coverage:
     """Cast every part into the flat depth (P,) float32 and part (P,) int32 buffers, in
     place (they start with the ground); returns the objects' coverage.
 
     Objects come first and are only culled by the ground, so that their coverage can be
     counted; scenery follows front to back, so that a part hidden by nearer ones is
-    mostly skipped.
+    mostly skipped. scenery_rows (first, last): the only rows where scenery is cast (default
+    all), for a canvas whose other rows count the objects' coverage alone.
     """
     near = np.flatnonzero(_in_frustum(parts.center, parts.bounding_radius(), view))
     corners_cam = _camera_points(_box_corners(parts.center[near], parts.half_size[near], parts.yaw[near]), view)
@@ -482,6 +483,10 @@ def _cast_parts(parts: Parts, view: _View, depth: np.ndarray, part_buf: np.ndarr
     objects = near[parts.owner[near] >= 0]
     scenery = near[parts.owner[near] < 0]
     scenery = scenery[np.argsort(rays.nearest[scenery], kind="stable")]
+    if scenery_rows is not None:
+        rects[scenery, 1] = np.maximum(rects[scenery, 1], scenery_rows[0])
+        rects[scenery, 3] = np.minimum(rects[scenery, 3], scenery_rows[1])
+        scenery = scenery[rects[scenery, 1] <= rects[scenery, 3]]
     coverage = _Coverage(parts.owner, rects, objects, n_objects)
     ground = depth.copy()
     shape = (view.height, view.width)
@@ -1409,7 +1414,7 @@ def coverage_counts(parts: Parts, intrinsic, cam_to_world, width: int, height: i
     padded = np.array(intrinsic, np.float64)
     padded[1, 2] += pad_rows
     view = _make_view(padded, np.asarray(cam_to_world, np.float64), width, height + 2 * pad_rows)
-    _, part_buf, coverage, _ = _cast_view(parts, view, n_objects)
+    _, part_buf, coverage, _ = _cast_view(parts, view, n_objects, scenery_rows=(pad_rows, pad_rows + height - 1))
     owner = _owner_map(parts, part_buf[pad_rows * width:(pad_rows + height) * width])
     counted = (owner >= 0) & (owner < n_objects)
     visible = np.bincount(owner[counted], minlength=n_objects)[:n_objects].astype(np.int64)
@@ -1417,14 +1422,16 @@ def coverage_counts(parts: Parts, intrinsic, cam_to_world, width: int, height: i
                           whole=coverage.pixels())
 
 
-def _cast_view(parts: Parts, view: _View, n_objects: int) -> tuple[np.ndarray, np.ndarray, _Coverage, np.ndarray]:
-    """The ground and every part cast into one view: depth (P,) float32, part_buf (P,) intp
-    (-1: ground or sky), the objects' coverage and the rays' lengths (P,) float32."""
+def _cast_view(parts: Parts, view: _View, n_objects: int,
+               scenery_rows: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray, _Coverage, np.ndarray]:
+    """The ground and every part cast into one view (scenery only in scenery_rows, see
+    `_cast_parts`): depth (P,) float32, part_buf (P,) intp (-1: ground or sky), the objects'
+    coverage and the rays' lengths (P,) float32."""
     ray_len = _ray_lengths(view)
     depth = _ground_depth(view, ray_len)
     part_buf = np.full(view.width * view.height, -1, np.int32)
     if len(parts):
-        coverage = _cast_parts(parts, view, depth, part_buf, n_objects)
+        coverage = _cast_parts(parts, view, depth, part_buf, n_objects, scenery_rows)
     else:
         coverage = _Coverage(parts.owner, np.zeros((0, 4), np.int64), np.zeros(0, np.intp), n_objects)
     return depth, part_buf.astype(np.intp), coverage, ray_len  # numpy gathers by intp several times faster

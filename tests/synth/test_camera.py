@@ -201,11 +201,18 @@ def test_sensor_noise_has_the_style_standard_deviation():
 
 
 def test_coverage_counts_see_what_the_render_sees():
-    occluded = concat_parts([cube(0, center=(10.0, 0.0, 1.5)), cube(1, center=(6.0, 0.6, 1.5), half=(0.3, 0.5, 0.5))])
-    out = render(occluded, n_objects=2)
-    pixels = counts(occluded, n_objects=2)
-    np.testing.assert_array_equal(pixels.visible, np.bincount(out.owner_map[out.owner_map >= 0], minlength=2))
-    np.testing.assert_array_equal(counts(occluded, n_objects=2, pad_rows=40).visible, pixels.visible)
+    """Objects and scenery around the camera: the visible pixels are the render's, padded or
+    not (the padding casts no scenery, so it changes no pixel of the image)."""
+    parts = street_scene(seed=3)
+    out = render(parts, n_objects=5)
+    pixels = counts(parts, n_objects=5)
+    owners = out.owner_map[out.owner_map >= 0]
+    assert (parts.owner < 0).any() and len(np.unique(owners)) == 5
+    np.testing.assert_array_equal(pixels.visible, np.bincount(owners, minlength=5))
+    padded = counts(parts, n_objects=5, pad_rows=40)
+    np.testing.assert_array_equal(padded.visible, pixels.visible)
+    np.testing.assert_array_equal(padded.in_image, pixels.in_image)
+    assert np.all(padded.whole >= padded.in_image)
 
 
 def test_the_padded_canvas_counts_what_the_image_edges_cut_off():
