@@ -42,6 +42,7 @@ AZIMUTH_BIN_DEGREES = 15.0
 FORE_AFT_DEGREES = 15.0  # half-width of the fore-aft sectors (ahead and behind)
 HEADING_BIN_DEGREES = 5.0
 VISIBILITY_LEVELS = {"1": "v0-40", "2": "v40-60", "3": "v60-80", "4": "v80-100"}
+FULLY_VISIBLE_TOKEN = "4"  # v80-100
 # Scene conditions as nuScenes descriptions write them ("Night, big street, ...", "Rain, peds,
 # parking lot", "Night, rain, ..."): a word that starts with "night" or "rain", any case, so
 # "rainy" counts and "train" or "drain" do not.
@@ -258,6 +259,9 @@ def class_range_figures(classes: np.ndarray, distance: np.ndarray, n_samples: in
         "share_without_radar_points": _share(radar_points[in_range] == 0),
         "share_without_lidar_or_radar_points": _share(empty[in_range]),
         "visibility_shares": visibility_shares(visibility_tokens[in_range]),
+        "share_fully_visible_by_distance_band": {
+            name: _share(visibility_tokens[in_range][band == i] == FULLY_VISIBLE_TOKEN)
+            for i, name in enumerate(band_names)},
         "share_without_lidar_or_radar_points_by_visibility": {
             level: _share(empty[in_range & (visibility_tokens == token)])
             for token, level in VISIBILITY_LEVELS.items()},
@@ -501,6 +505,9 @@ def _class_range_lines(figures: dict) -> list[str]:
                  + " / ".join(_percent(v) for v in empty_by_band.values()) + _versus("empty_share_by_distance_band"))
     lines.append("    in-range visibility: " + ", ".join(
         f"{k} {_percent(v)}" for k, v in figures["visibility_shares"].items()) + _versus("visibility_shares"))
+    fully_visible = figures["share_fully_visible_by_distance_band"]
+    lines.append(f"    in-range boxes 80-100 % visible by distance {' / '.join(fully_visible)} m: "
+                 + " / ".join(_percent(v) for v in fully_visible.values()) + " | nuScenes: not published")
     lines.append("    in-range boxes without LiDAR or radar by visibility: " + ", ".join(
         f"{k} {_percent(v)}" for k, v in figures["share_without_lidar_or_radar_points_by_visibility"].items())
         + _versus("empty_share_by_visibility"))

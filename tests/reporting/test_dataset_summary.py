@@ -66,6 +66,8 @@ def test_class_range_figures_use_the_devkit_strict_range_and_the_val_bands():
     assert figures["share_without_lidar_or_radar_points"] == 1 / 4
     assert set(REFERENCE["class_range_empty_shares"].value) <= set(figures)  # the reference names our figures
     assert figures["visibility_shares"] == {"v0-40": 1 / 4, "v40-60": 1 / 4, "v60-80": 1 / 4, "v80-100": 1 / 4}
+    # the one fully visible in-range box is the car at 49.99 m; the v80-100 one at 50 m is out of range
+    assert figures["share_fully_visible_by_distance_band"] == {"0-20": 0.0, "20-30": 0.0, "30-40": 0.0, "40-50": 1.0}
     assert figures["share_without_lidar_or_radar_points_by_distance_band"] == {
         "0-20": 1.0, "20-30": 0.0, "30-40": 0.0, "40-50": 0.0}
     assert set(REFERENCE["empty_share_by_distance_band"].value) == set(figures["distance_band_shares"])
