@@ -22,7 +22,8 @@ def synth_cli(
     scenes: Optional[int] = typer.Option(None, help="Number of 20 s scenes (default: 10 for v1.0-mini)."),
     image_scale: float = typer.Option(0.5, help="Camera images are 1600x900 times this scale."),
     seed: int = typer.Option(0, help="Same seed, byte-identical dataset."),
-    sensors: str = typer.Option("all", help="'all' writes JPEGs and .pcd.bin sweeps; 'none' the tables only."),
+    sensors: str = typer.Option("all", help="'all' writes JPEGs and .pcd.bin sweeps; 'none' the tables only "
+                                            "(the same annotations)."),
     scene_seconds: float = typer.Option(20.0, help="Scene length, up to 20 s; a shorter scene is the start of the full one."),
     workers: int = typer.Option(1, help="Processes sensing scenes in parallel (the output does not depend on it)."),
     overwrite: bool = typer.Option(False, "--overwrite",
