@@ -116,6 +116,17 @@ def init_distributed(device: torch.device) -> tuple[int, int, torch.device]:
     return dist.get_rank(), dist.get_world_size(), device
 
 
+def finish_distributed(world: int) -> None:
+    """Wait for every rank before the process group is torn down at exit. Rank 0 validates and
+    writes after the last epoch; a rank that left at once tore the group down under it and
+    could abort ("terminate called without an active exception": the 2-process test failed
+    so once on a fresh clone)."""
+    if world > 1:
+        import torch.distributed as dist
+
+        dist.barrier()
+
+
 def seed_everything(seed: int, rank: int = 0) -> None:
     """Seed Python's, numpy's global and torch's (CPU and CUDA) generators with ``seed + rank``.
 

@@ -64,7 +64,8 @@ from sianms_cli.models.losses import double_margin_loss, pair_distances, positiv
 from sianms_cli.models.siamese import SiameseEncoder, parameter_count
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.training.run import CHECKPOINT, Checkpoint, RunFolder, choose_device, epoch_generator, \
-    init_distributed, load_checkpoint, load_state, plain, seed_everything, set_learning_rate, step_decay
+    finish_distributed, init_distributed, load_checkpoint, load_state, plain, seed_everything, set_learning_rate, \
+    step_decay
 
 KIND = "siamese"
 THRESHOLD_STEPS = 64  # dis_thr candidates: quantiles of the validation candidates' distances
@@ -424,6 +425,7 @@ def run(config: SiameseConfig, out: str | Path, *, overwrite: bool = False, resu
             if on_epoch is not None and rank == 0:
                 on_epoch(row)
             progress.advance()
+    finish_distributed(world)
     return SiameseResult(out=Path(out), epochs_run=epochs_run, resumed_from=start,
                          metrics=history[-1] if history else {}, baseline=reference, dis_thr=dis_thr,
                          parameters=parameter_count(model), history=history)
