@@ -396,13 +396,12 @@ class _Coverage:
 
     def pixels(self, rows: slice = slice(0, None)) -> np.ndarray:
         """(n_objects,) int64 covered pixels of each object, in the image rows `rows` (all by default)."""
-        counts = np.zeros(self.n_objects, np.int64)
-        for o, (s, (r, c)) in enumerate(zip(self.start, self.shape)):
-            top = self.corner[o, 1]
-            first, stop = max(rows.start - top, 0), r if rows.stop is None else min(rows.stop - top, r)
-            if first < stop:
-                counts[o] = np.count_nonzero(self.bits[s + first * c:s + stop * c])
-        return counts
+        height, width = self.shape[:, 0], self.shape[:, 1]
+        top = self.corner[:, 1]
+        stop = height if rows.stop is None else np.clip(rows.stop - top, 0, height)
+        first = np.minimum(np.clip(rows.start - top, 0, height), stop)
+        covered = np.concatenate([[0], np.cumsum(self.bits, dtype=np.int64)])
+        return covered[self.start + stop * width] - covered[self.start + first * width]
 
 
 def _tiles(rect):
@@ -1373,8 +1372,8 @@ def render_camera(parts: Parts, appearances, ground_shader, intrinsic, cam_to_wo
     intrinsic (3,3) pinhole K; cam_to_world (4,4) camera (OpenCV axes) to global;
     width, height in pixels; style: the camera's `CameraStyle`; sun_direction (3,) towards
     the sun, global frame (normalised here); n_objects: the number of objects (owners 0 ..
-    n_objects - 1); rng: draws the per-frame white-balance
-    drift, the lens drops and the sensor noise; casts_shadow (M,) bool: the parts that cast
+    n_objects - 1); rng: draws the per-frame white-balance drift, the lens drops and the
+    sensor noise; casts_shadow (M,) bool: the parts that cast
     shadows (default: the objects', owner >= 0; street clutter too where the caller says
     so); conditions: night (no sun, emitting lamps, street-light pools, more noise) and
     rain (overcast, wet road, drops on the lens); motion_blur_px: length in pixels of the
