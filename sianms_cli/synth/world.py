@@ -187,8 +187,17 @@ GIVE_WAY_TRIES = 3  # later arrivals tried before a junction road user is left o
 # which left seed 11's 40 scenes at 34.1 % parked, 53.6 % moving and 12.3 % stopped.
 LANE_GAP = 30.0  # free gap behind a vehicle in a lane
 HELD_UP_LANE_SHARE = 0.38
-"""Lanes other than the ego's whose traffic stands (queued at a light, in a jam); their vehicles keep
-the lane's gaps, a simplification of real queues, which close up."""
+"""Lanes other than the ego's whose traffic stands (queued at a light, in a jam)."""
+QUEUE_VEHICLES = 6.0
+"""Mean vehicles in a standing queue (geometric): a red phase of ~35 s at ~600 vehicles per hour
+and lane builds six (our estimate of an urban signal; the saturation flow of 1,900 per hour
+that discharges them is the Highway Capacity Manual's base value)."""
+STANDSTILL_GAP = (2.0, 1.0)
+"""Metres between standing vehicles in a queue: 2 m, the standstill distance s0 of the
+intelligent driver model (Treiber, Hennecke and Helbing, Phys. Rev. E 62, 2000), plus an
+exponential of mean 1 m. Queues are as far apart as keeps a held-up lane's mean spacing per
+vehicle that of a flowing one, so queueing changes where stopped vehicles stand, not how
+many there are; before, they stood ~40 m apart, each in the open."""
 PARKED_SHARE = 0.42  # of kerb-side slots, times (busyness + 0.3)
 KERB_GAP = (0.8, 1.5)
 """Metres between the slots of a parking lane: at least 0.8 plus an exponential of mean 1.5,
@@ -200,11 +209,25 @@ PARKED_BICYCLE_GAP = 630.0  # between bicycles parked at one kerb (not times 1 /
 # start (a renewal process seen from a random point). Before, they started within a fixed 1,800 /
 # 2,400 m on routes of ~450 m, which held bicycles at 0.22 per keyframe whatever the gaps said;
 # trainval has 0.35, 59 % of them without a rider (mini attribute shares, §9.5-3).
-WALKER_GAP = 68.0  # between walkers on one walking line of a pavement
+WALKER_GAP = 68.0  # between walking parties (a walker alone or a group) on one pavement stream
 STANDING_GAP = 95.0  # between people standing at the back of a pavement
 MOVING_SPEED = 0.2  # m/s: below this a road user counts as standing still
 DEPARTURE_STOP = 120.0  # metres from a junction where cars leaving along a crossing street stop
 WALKER_QUEUE_SPACING = 1.2  # metres between walkers waiting at a junction (2-sigma body length + gap)
+PARTY_SIZES = (1, 2, 3)
+PARTY_SIZE_SHARES = (0.6, 0.3, 0.1)
+"""Walking parties on a pavement: 60 % of the walkers walk in a group, three groups in four
+pairs. Up to 70 % of the people of a crowded shopping street walk in groups, most of them
+pairs (Moussaid et al., PLoS ONE 5(4) e10047, 2010); the 60 % and the split between pairs and
+triads are our estimates for city pavements. A party holds 1.5 walkers on average, so
+``WALKER_GAP`` between parties on two streams per pavement keeps the density that 68 m
+between single walkers on three lines had."""
+ABREAST_SPACING = 1.0
+"""Metres between group members walking side by side: the spacing of the pavement's walking
+lines. Groups walk abreast at low density, a line across the walking direction; triads bend
+it into a V, the middle walker slightly behind (Moussaid et al. 2010, whose model keeps 0.8 m
+between neighbours; Zanlungo et al., PLoS ONE 14(12) e0225704, 2019)."""
+V_SETBACK = 0.8  # metres a triad's middle walker keeps behind the two beside it
 AISLE_WALKER_GAP = 48.0
 """Mean gap between people walking along one line of a car park's aisle (two lines per aisle,
 one each way): people walk to and from their cars there, 10-30 m from the road, where the
@@ -605,17 +628,34 @@ def _place_lane_traffic(agents: AgentList, rng, street: Street, ego: EgoDrive, e
             # flowing towards the ego's window keeps it populated until the end.
             lo = ego.s0 - ANNOTATION_RADIUS - 20.0 - (travel if direction > 0 else 0.0)
             hi = ego.s0 + ego_travel + ANNOTATION_RADIUS + 20.0 + (travel if direction < 0 else 0.0)
-            position = lo
+            queued = speed == 0 and not ego_lane_here
+            # A held-up lane's queues start well before lo, so that where they stand is random.
+            position = lo - (2.0 * QUEUE_VEHICLES * (LANE_GAP / busyness + 10.0) if queued else 0.0)
             while position < hi:
                 category = _vehicle_category(rng, moving=speed > 0)
                 size = sample_size(category, rng)
                 position += size[1] / 2
                 clear_of_ego = abs(position - ego.s0) > 5.0 + size[1] / 2
-                if not ego_lane_here or clear_of_ego:
+                # Queues stand short of a junction and leave its box clear for the crossing traffic.
+                clear_of_junctions = not (queued and street.near_intersection(np.array([position]),
+                                                                             margin=size[1] / 2 + 2.0)[0])
+                if position >= lo and (not ego_lane_here or clear_of_ego) and clear_of_junctions:
                     agents.add(category, size, p0=position, offset=section.lane_center(lane, direction),
                                speed=speed, accel=accel, direction=direction,
                                rider=category == "vehicle.motorcycle")
-                position += size[1] / 2 + 2.5 + float(rng.exponential(LANE_GAP / busyness))
+                gap = _queue_gap(rng, busyness) if queued else 2.5 + float(rng.exponential(LANE_GAP / busyness))
+                position += size[1] / 2 + gap
+
+
+def _queue_gap(rng: np.random.Generator, busyness: float) -> float:
+    """Metres behind a vehicle of a held-up lane: the standstill gap inside a queue, or, once in
+    ``QUEUE_VEHICLES`` on average, the road up to the next queue, whose mean makes the lane's
+    mean gap per vehicle that of flowing traffic (2.5 m + ``LANE_GAP`` / busyness)."""
+    standstill = STANDSTILL_GAP[0] + STANDSTILL_GAP[1]
+    if rng.random() >= 1.0 / QUEUE_VEHICLES:
+        return STANDSTILL_GAP[0] + float(rng.exponential(STANDSTILL_GAP[1]))
+    free = QUEUE_VEHICLES * (2.5 + LANE_GAP / busyness - standstill)
+    return standstill + float(rng.exponential(free))
 
 
 def _place_parked_vehicles(agents: AgentList, rng, street: Street, busyness: float, blocked: list) -> None:
@@ -708,30 +748,35 @@ def _place_cyclists(agents: AgentList, rng, street: Street, busyness: float) -> 
 
 
 def _place_pedestrians(agents: AgentList, rng, street: Street, busyness: float) -> None:
-    """Walkers on three walking lines per pavement (1 m apart, each with its own direction
-    and pace), and people standing by the building fronts. Walkers heading for a junction
-    where the route turns wait at its edge, one behind the other."""
+    """Walking parties on each pavement and people standing by the building fronts.
+
+    Three walking lines per pavement, 1 m apart: the two nearer the kerb carry one stream,
+    whose groups walk abreast (a triad as a V, its middle walker between the lines), the
+    third the other way, whose groups walk in file, too narrow to pass abreast. Each
+    stream keeps one direction and pace, so its parties never meet. Parties heading for a
+    junction where the route turns wait at its edge, one behind the other."""
     section = street.section
     length = street.route.length
     spans = _turn_spans(street)
     for side in (+1, -1):
-        for k, inset in enumerate((1.35, 2.35, 3.35)):
-            direction = 1 if (k + (side > 0)) % 2 == 0 else -1
+        abreast_direction = int(rng.choice([1, -1]))
+        for insets, direction in (((1.35, 2.35), abreast_direction), ((3.35,), -abreast_direction)):
             speed = float(np.clip(rng.normal(1.35, 0.15), 0.9, 1.8))
-            offset = side * (section.kerb + inset)
-            waiting: dict[float, int] = {}  # junction edge -> walkers already queued there
-            positions = list(_fill_line(rng, 0.0, length, WALKER_GAP / busyness, float(rng.uniform(0, 100))))
-            for position in (positions if direction < 0 else positions[::-1]):  # front of the queue first
-                category = "human.pedestrian.child" if rng.random() < 0.03 else "human.pedestrian.adult"
-                size = sample_size(category, rng)
-                if _in_spans(position, spans, margin=1.0):
+            waiting: dict[float, float] = {}  # junction edge -> metres of queue already standing there
+            parties = list(_walking_parties(rng, length, WALKER_GAP / busyness, insets, direction))
+            for front, members in (parties if direction < 0 else parties[::-1]):  # front of the queue first
+                positions = front - direction * members[:, 1]
+                if any(_in_spans(p, spans, margin=1.0) for p in positions):
                     continue
-                lo, hi = _walk_range(position, direction, spans)
+                lo, hi = _walk_range(front, direction, spans)
                 edge = hi if direction > 0 else lo
-                queued = waiting.get(edge, 0)
-                waiting[edge] = queued + 1
-                agents.add(category, size, p0=position, offset=offset, speed=speed, direction=direction,
-                           p_range=_queued_range(lo, hi, direction, queued))
+                queued = waiting.get(edge, 0.0)
+                waiting[edge] = queued + float(members[:, 1].max()) + WALKER_QUEUE_SPACING
+                for (inset, back), position in zip(members, positions):
+                    category = "human.pedestrian.child" if rng.random() < 0.03 else "human.pedestrian.adult"
+                    agents.add(category, sample_size(category, rng), p0=float(position),
+                               offset=side * (section.kerb + inset), speed=speed, direction=direction,
+                               p_range=_queued_range(lo, hi, direction, queued + back))
         for position in _fill_line(rng, 0.0, length, STANDING_GAP / busyness, float(rng.uniform(0, 100))):
             category = "human.pedestrian.adult"
             offset = side * (section.kerb + PAVEMENT_WIDTH - 0.2)
@@ -740,11 +785,35 @@ def _place_pedestrians(agents: AgentList, rng, street: Street, busyness: float) 
                 agents.add(category, size, p0=position, offset=offset, yaw_offset=float(rng.uniform(-np.pi, np.pi)))
 
 
-def _queued_range(lo: float, hi: float, direction: int, queued: int) -> tuple[float, float]:
-    """Path range of a walker heading for the end of [lo, hi] with ``queued`` walkers already
-    waiting there: it stops one body length behind the last of them."""
-    shift = queued * WALKER_QUEUE_SPACING
-    return (lo, hi - shift) if direction > 0 else (lo + shift, hi)
+def party_formation(size: int, insets: tuple) -> np.ndarray:
+    """(size, 2) members of a walking party: their line's inset from the kerb (m) and how far
+    each walks behind the party's front (m). On two lines a pair walks abreast and a triad as
+    a V; on one line a party walks in file, ``WALKER_QUEUE_SPACING`` apart."""
+    if len(insets) == 1:
+        return np.column_stack([np.full(size, insets[0]), WALKER_QUEUE_SPACING * np.arange(size)])
+    formation = np.array([[insets[0], 0.0], [insets[1], 0.0], [(insets[0] + insets[1]) / 2, V_SETBACK]])
+    return formation[:size]
+
+
+def _walking_parties(rng: np.random.Generator, length: float, gap_mean: float, insets: tuple, direction: int):
+    """(front, members) of the parties of a stream walking ``direction`` along [0, length),
+    fronts ascending: members as `party_formation`; a lone walker takes one of the stream's
+    lines at random. Parties are at least 2.5 m apart from the last member of one to the
+    front of the next."""
+    position = float(rng.uniform(0, 100))
+    while position < length:
+        size = int(rng.choice(PARTY_SIZES, p=PARTY_SIZE_SHARES))
+        lines = (insets[int(rng.integers(len(insets)))],) if size == 1 else insets
+        members = party_formation(size, lines)
+        depth = float(members[:, 1].max())
+        yield (position + depth if direction > 0 else position), members
+        position += depth + max(float(rng.exponential(gap_mean)), 2.5)
+
+
+def _queued_range(lo: float, hi: float, direction: int, behind: float) -> tuple[float, float]:
+    """Path range of a walker heading for the end of [lo, hi] that stops ``behind`` metres short
+    of it: behind the walkers already waiting there and its own party's front."""
+    return (lo, hi - behind) if direction > 0 else (lo + behind, hi)
 
 
 def _place_car_park_walkers(agents: AgentList, rng, street: Street, busyness: float) -> None:
@@ -763,7 +832,7 @@ def _place_car_park_walkers(agents: AgentList, rng, street: Street, busyness: fl
                 for queued, position in enumerate(positions[::-1] if direction > 0 else positions):
                     agents.add("human.pedestrian.adult", sample_size("human.pedestrian.adult", rng), p0=position,
                                offset=park.side * (middle + inset), speed=speed, direction=direction,
-                               p_range=_queued_range(lo, hi, direction, queued))
+                               p_range=_queued_range(lo, hi, direction, queued * WALKER_QUEUE_SPACING))
 
 
 def _place_crossing_traffic(agents: AgentList, rng, street: Street, busyness: float) -> list:

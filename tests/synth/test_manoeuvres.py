@@ -4,7 +4,7 @@ import pytest
 from sianms_cli.synth.manoeuvres import CLEARANCE, closest_approach
 from sianms_cli.synth.world import SCENE_SECONDS, lateral_offset, plan_scene
 
-VARIED = (0, 4, 16, 55)  # ego lane changes (0, 4, 55), lane changes, pull-outs and pull-ins (4, 16)
+VARIED = (0, 4, 20, 55)  # ego lane changes (0, 55), pull-outs (4, 20), lane changes and pull-ins (20)
 
 
 @pytest.fixture(scope="module")

@@ -4,10 +4,15 @@ import pytest
 from sianms_cli.synth.manoeuvres import CLEARANCE, closest_approach
 from sianms_cli.synth.road import BAY_DEPTH, BAY_START, ROW_PITCH
 from sianms_cli.synth.world import (
+    ABREAST_SPACING,
     KERB_GAP,
     KEYFRAME_HZ,
+    QUEUE_VEHICLES,
     SCENE_SECONDS,
     SIZE_STATS,
+    STANDSTILL_GAP,
+    V_SETBACK,
+    party_formation,
     plan_scene,
 )
 
@@ -365,3 +370,61 @@ def test_parked_and_ridden_bicycles_appear(seeded):
     parked = sum(int(np.sum(b & p.agents.parked)) for b, p in zip(bicycles, seeded))
     ridden = sum(int(np.sum(b & p.agents.rider)) for b, p in zip(bicycles, seeded))
     assert parked >= 25 and ridden >= 10
+
+
+def _pavement_walkers(plan) -> np.ndarray:
+    """(N,) bool: people walking along a pavement (not in car parks, not crossing)."""
+    on_route = ~plan.agents.on_line & np.array([path is None for path in plan.agents.path], dtype=bool)
+    inset = np.abs(plan.agents.offset) - plan.street.section.kerb
+    walking = plan.agents.speed > 0
+    return on_route & walking & np.isin(plan.agents.category, list(PEDESTRIANS)) & (inset > 0) & (inset < 4.0)
+
+
+PEDESTRIANS = ("human.pedestrian.adult", "human.pedestrian.child")
+
+
+def test_party_formations_abreast_as_a_v_and_in_file():
+    np.testing.assert_array_equal(party_formation(2, (1.35, 2.35)), [[1.35, 0.0], [2.35, 0.0]])
+    np.testing.assert_array_equal(party_formation(3, (1.35, 2.35)), [[1.35, 0.0], [2.35, 0.0], [1.85, V_SETBACK]])
+    np.testing.assert_array_equal(party_formation(3, (3.35,)), [[3.35, 0.0], [3.35, 1.2], [3.35, 2.4]])
+
+
+def test_most_pavement_walkers_walk_with_others(seeded):
+    """60 % of the pavement walkers walk in a party (PARTY_SIZE_SHARES): beside a companion 1 m
+    away on the other line of their stream, or within 2.4 m of one in file. Parties are 2.5 m
+    apart or more, so walkers of one stream closer than that walk together."""
+    together, walkers, abreast = 0, 0, 0
+    for plan in seeded:
+        rows = np.flatnonzero(_pavement_walkers(plan))
+        a = plan.agents
+        same_stream = ((np.sign(a.offset[rows, None]) == np.sign(a.offset[None, rows]))
+                       & (a.direction[rows, None] == a.direction[None, rows])
+                       & (a.speed[rows, None] == a.speed[None, rows]))
+        along = np.abs(a.p0[rows, None] - a.p0[None, rows])
+        across = np.abs(a.offset[rows, None] - a.offset[None, rows])
+        close = same_stream & (along < 2.45)
+        np.fill_diagonal(close, False)
+        together += int(close.any(axis=1).sum())
+        walkers += len(rows)
+        abreast += int((close & (along < 1e-9) & (np.abs(across - ABREAST_SPACING) < 1e-9)).sum()) // 2
+    assert walkers > 500 and 0.5 < together / walkers < 0.7
+    assert abreast > 50
+
+
+def test_held_up_lanes_stand_in_queues(seeded):
+    """Standing vehicles of a held-up lane queue 2 m + exp(1 m) apart, nose to tail, in queues of
+    QUEUE_VEHICLES on average."""
+    gaps = []
+    for plan in seeded:
+        a = plan.agents
+        in_lane = (~a.on_line & np.array([path is None for path in a.path], dtype=bool) & ~a.parked
+                   & (a.speed == 0) & np.char.startswith(a.category.astype(str), "vehicle.")
+                   & (np.abs(a.offset) < plan.street.section.kerb))
+        for lane in np.unique(a.offset[in_lane]):
+            rows = np.flatnonzero(in_lane & (a.offset == lane))
+            rows = rows[np.argsort(a.p0[rows])]
+            gaps.extend(np.diff(a.p0[rows]) - (a.size[rows[1:], 1] + a.size[rows[:-1], 1]) / 2)
+    gaps = np.array(gaps)
+    assert len(gaps) > 150 and gaps.min() >= STANDSTILL_GAP[0] - 1e-9
+    queued = gaps < STANDSTILL_GAP[0] + 5 * STANDSTILL_GAP[1]
+    assert 0.7 < queued.mean() < 1.0 - 0.5 / QUEUE_VEHICLES
