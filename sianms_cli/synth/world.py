@@ -36,6 +36,7 @@ from sianms_cli.synth.junctions import ARM_LENGTH, turn_off_route, turn_onto_rou
 from sianms_cli.synth.manoeuvres import (
     CLEARANCE,
     EGO_LANE_CHANGE_SHARE,
+    EGO_SIZE,
     closest_approach,
     plan_manoeuvres,
     without,
@@ -185,19 +186,22 @@ GIVE_WAY_TRIES = 3  # later arrivals tried before a junction road user is left o
 # _vehicle_category. Until the kerb filled up, parking lanes held a vehicle every ~36 m
 # (0.27 x (busyness + 0.3) of slots 0.8 m + exp(4 m) apart) and 12 % of lanes were held up,
 # which left seed 11's 40 scenes at 34.1 % parked, 53.6 % moving and 12.3 % stopped.
-LANE_GAP = 30.0  # free gap behind a vehicle in a lane
+LANE_GAP = 30.0  # a lane's mean gap per vehicle, beyond 2.5 m (in platoons: FOLLOWING_HEADWAY)
 HELD_UP_LANE_SHARE = 0.38
 """Lanes other than the ego's whose traffic stands (queued at a light, in a jam)."""
 QUEUE_VEHICLES = 6.0
-"""Mean vehicles in a standing queue (geometric): a red phase of ~35 s at ~600 vehicles per hour
-and lane builds six (our estimate of an urban signal; the saturation flow of 1,900 per hour
-that discharges them is the Highway Capacity Manual's base value)."""
+"""Mean vehicles in a platoon (geometric), standing or moving: a red phase of ~35 s at ~600
+vehicles per hour and lane queues six (our estimate of an urban signal; the 1,900 vehicles per
+hour that discharge them at green is the Highway Capacity Manual's base saturation flow), and
+the queue leaves the signal as a platoon."""
 STANDSTILL_GAP = (2.0, 1.0)
-"""Metres between standing vehicles in a queue: 2 m, the standstill distance s0 of the
-intelligent driver model (Treiber, Hennecke and Helbing, Phys. Rev. E 62, 2000), plus an
-exponential of mean 1 m. Queues are as far apart as keeps a held-up lane's mean spacing per
-vehicle that of a flowing one, so queueing changes where stopped vehicles stand, not how
-many there are; before, they stood ~40 m apart, each in the open."""
+FOLLOWING_HEADWAY = 1.5
+"""A vehicle follows the one ahead in its platoon at 2 m + exp(1 m) + 1.5 s x speed: the
+intelligent driver model's standstill distance s0 = 2 m and time gap T = 1.5 s (Treiber,
+Hennecke and Helbing, Phys. Rev. E 62, 2000), so a standing queue closes up nose to tail.
+Platoons are as far apart as keeps a lane's mean spacing per vehicle that of evenly spread
+traffic (2.5 m + exp(``LANE_GAP`` / busyness)), so platoons change where vehicles are, not how
+many there are; before, each vehicle drove or stood on its own, ~40 m from the next."""
 PARKED_SHARE = 0.42  # of kerb-side slots, times (busyness + 0.3)
 KERB_GAP = (0.8, 1.5)
 """Metres between the slots of a parking lane: at least 0.8 plus an exponential of mean 1.5,
@@ -629,13 +633,14 @@ def _place_lane_traffic(agents: AgentList, rng, street: Street, ego: EgoDrive, e
             lo = ego.s0 - ANNOTATION_RADIUS - 20.0 - (travel if direction > 0 else 0.0)
             hi = ego.s0 + ego_travel + ANNOTATION_RADIUS + 20.0 + (travel if direction < 0 else 0.0)
             queued = speed == 0 and not ego_lane_here
-            # A held-up lane's queues start well before lo, so that where they stand is random.
-            position = lo - (2.0 * QUEUE_VEHICLES * (LANE_GAP / busyness + 10.0) if queued else 0.0)
+            # Platoons start well before lo, so that where they are is random.
+            position = lo - 2.0 * QUEUE_VEHICLES * (LANE_GAP / busyness + 10.0)
             while position < hi:
                 category = _vehicle_category(rng, moving=speed > 0)
                 size = sample_size(category, rng)
                 position += size[1] / 2
-                clear_of_ego = abs(position - ego.s0) > 5.0 + size[1] / 2
+                # The ego drives in its lane's platoon: who follows it or leads it keeps the platoon's gap.
+                clear_of_ego = abs(position - ego.s0) > EGO_SIZE[1] / 2 + size[1] / 2 + _following_gap(speed)
                 # Queues stand short of a junction and leave its box clear for the crossing traffic.
                 clear_of_junctions = not (queued and street.near_intersection(np.array([position]),
                                                                              margin=size[1] / 2 + 2.0)[0])
@@ -643,19 +648,25 @@ def _place_lane_traffic(agents: AgentList, rng, street: Street, ego: EgoDrive, e
                     agents.add(category, size, p0=position, offset=section.lane_center(lane, direction),
                                speed=speed, accel=accel, direction=direction,
                                rider=category == "vehicle.motorcycle")
-                gap = _queue_gap(rng, busyness) if queued else 2.5 + float(rng.exponential(LANE_GAP / busyness))
-                position += size[1] / 2 + gap
+                position += size[1] / 2 + _platoon_gap(rng, busyness, speed)
 
 
-def _queue_gap(rng: np.random.Generator, busyness: float) -> float:
-    """Metres behind a vehicle of a held-up lane: the standstill gap inside a queue, or, once in
-    ``QUEUE_VEHICLES`` on average, the road up to the next queue, whose mean makes the lane's
-    mean gap per vehicle that of flowing traffic (2.5 m + ``LANE_GAP`` / busyness)."""
-    standstill = STANDSTILL_GAP[0] + STANDSTILL_GAP[1]
+def _following_gap(speed: float) -> float:
+    """Least metres between a vehicle and the one it follows at ``speed`` m/s (FOLLOWING_HEADWAY)."""
+    return STANDSTILL_GAP[0] + FOLLOWING_HEADWAY * speed
+
+
+def _platoon_gap(rng: np.random.Generator, busyness: float, speed: float) -> float:
+    """Metres behind a vehicle of a lane moving at ``speed`` m/s: the following gap inside a
+    platoon, or, once in ``QUEUE_VEHICLES`` on average, the road up to the next platoon, whose
+    mean makes the lane's mean gap per vehicle 2.5 m + ``LANE_GAP`` / busyness (see
+    ``FOLLOWING_HEADWAY``)."""
+    following = _following_gap(speed)
     if rng.random() >= 1.0 / QUEUE_VEHICLES:
-        return STANDSTILL_GAP[0] + float(rng.exponential(STANDSTILL_GAP[1]))
-    free = QUEUE_VEHICLES * (2.5 + LANE_GAP / busyness - standstill)
-    return standstill + float(rng.exponential(free))
+        return following + float(rng.exponential(STANDSTILL_GAP[1]))
+    mean_following = following + STANDSTILL_GAP[1]
+    free = QUEUE_VEHICLES * max(2.5 + LANE_GAP / busyness - mean_following, 0.0)
+    return mean_following + float(rng.exponential(free))
 
 
 def _place_parked_vehicles(agents: AgentList, rng, street: Street, busyness: float, blocked: list) -> None:

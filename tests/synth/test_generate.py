@@ -274,9 +274,9 @@ def test_scene_descriptions_say_what_the_ego_does_and_where():
     from sianms_cli.synth.world import plan_scene
 
     texts = {seed: generate._describe(plan_scene(np.random.default_rng(seed), drive_side=+1 if seed % 2 else -1),
-                                      "boston-seaport") for seed in (0, 3, 4, 36)}
-    assert "Three lanes each way, median" in texts[0] and "ego changes lane" in texts[0]
-    assert "lane changes and parking manoeuvres" in texts[0] and "turning traffic" in texts[0]
+                                      "boston-seaport") for seed in (26, 3, 4, 36)}
+    assert "Three lanes each way, median" in texts[26] and "ego changes lane" in texts[26]
+    assert "lane changes and parking manoeuvres" in texts[26] and "turning traffic" in texts[26]
     assert "ego turns" in texts[3] and "T junction" in texts[3]
     assert "4-way junction" in texts[36]
     assert "car park" in texts[4] and "roadworks" in texts[4]

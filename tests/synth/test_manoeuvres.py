@@ -4,7 +4,7 @@ import pytest
 from sianms_cli.synth.manoeuvres import CLEARANCE, closest_approach
 from sianms_cli.synth.world import SCENE_SECONDS, lateral_offset, plan_scene
 
-VARIED = (0, 4, 20, 55)  # ego lane changes (0, 55), pull-outs (4, 20), lane changes and pull-ins (20)
+VARIED = (14, 26, 37, 47)  # ego lane changes (14, 26), lane changes and pull-outs (14), pull-ins (37)
 
 
 @pytest.fixture(scope="module")
@@ -27,9 +27,9 @@ def _kinds(plan) -> list[str]:
 def test_every_manoeuvre_appears(plans):
     kinds = {kind for plan in plans.values() for kind in _kinds(plan)}
     assert kinds == {"lane", "out", "in"}
-    # The ego moves one lane, on seed 0's 3-lane arterial and on seed 55's 2-lane street.
-    assert abs(plans[0].ego.shift[0]) == pytest.approx(3.5) and abs(plans[55].ego.shift[0]) == pytest.approx(3.5)
-    assert plans[0].street.section.lanes_per_direction == 3
+    # The ego moves one lane, on seed 26's 3-lane arterial and on seed 14's 2-lane street.
+    assert abs(plans[26].ego.shift[0]) == pytest.approx(3.5) and abs(plans[14].ego.shift[0]) == pytest.approx(3.5)
+    assert plans[26].street.section.lanes_per_direction == 3
 
 
 def test_lateral_offset_is_a_smoothstep_with_zero_sideways_speed_at_its_ends():
@@ -51,7 +51,7 @@ def test_manoeuvring_tracks_have_consistent_speed_and_heading(plans, track_yaws)
 
 def test_the_ego_heads_where_it_goes_and_ends_in_the_other_lane(plans):
     dt = 1e-3
-    for seed in (0, 55):
+    for seed in (26, 14):
         plan = plans[seed]
         times = np.arange(0.0, SCENE_SECONDS, 0.25)
         xy, yaw = plan.ego.track(plan.route, times)
@@ -71,7 +71,7 @@ def test_manoeuvres_keep_their_clearance_all_scene(plans):
 
 
 def test_pulling_out_cars_are_stopped_until_they_go(plans):
-    plan = plans[4]
+    plan = plans[14]
     agents = plan.agents
     out = np.flatnonzero((agents.shift[:, 0] != 0.0) & np.isfinite(agents.p_range).any(axis=1)
                          & (np.abs(agents.offset) > plan.street.section.parking_inner))

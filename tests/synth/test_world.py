@@ -5,6 +5,7 @@ from sianms_cli.synth.manoeuvres import CLEARANCE, closest_approach
 from sianms_cli.synth.road import BAY_DEPTH, BAY_START, ROW_PITCH
 from sianms_cli.synth.world import (
     ABREAST_SPACING,
+    FOLLOWING_HEADWAY,
     KERB_GAP,
     KEYFRAME_HZ,
     QUEUE_VEHICLES,
@@ -411,20 +412,28 @@ def test_most_pavement_walkers_walk_with_others(seeded):
     assert abreast > 50
 
 
-def test_held_up_lanes_stand_in_queues(seeded):
-    """Standing vehicles of a held-up lane queue 2 m + exp(1 m) apart, nose to tail, in queues of
-    QUEUE_VEHICLES on average."""
-    gaps = []
+def _lane_gaps(plan, moving: bool):
+    """Bumper-to-bumper gaps (m) between consecutive vehicles of each driving lane of the route
+    whose traffic moves (or stands), with the lane's speed."""
+    a = plan.agents
+    in_lane = (~a.on_line & np.array([path is None for path in a.path], dtype=bool) & ~a.parked
+               & ((a.speed > 0) == moving) & np.char.startswith(a.category.astype(str), "vehicle.")
+               & (np.abs(a.offset) < plan.street.section.kerb) & (a.shift[:, 0] == 0.0))
+    for lane in np.unique(a.offset[in_lane]):
+        rows = np.flatnonzero(in_lane & (a.offset == lane))
+        rows = rows[np.argsort(a.p0[rows])]
+        yield np.diff(a.p0[rows]) - (a.size[rows[1:], 1] + a.size[rows[:-1], 1]) / 2, a.speed[rows[0]]
+
+
+@pytest.mark.parametrize("moving", [False, True])
+def test_lanes_carry_platoons_nose_to_tail(seeded, moving):
+    """Vehicles of a lane follow each other in platoons of QUEUE_VEHICLES on average, 2 m +
+    exp(1 m) + 1.5 s x speed apart (a standing queue closes up nose to tail)."""
+    excess = []
     for plan in seeded:
-        a = plan.agents
-        in_lane = (~a.on_line & np.array([path is None for path in a.path], dtype=bool) & ~a.parked
-                   & (a.speed == 0) & np.char.startswith(a.category.astype(str), "vehicle.")
-                   & (np.abs(a.offset) < plan.street.section.kerb))
-        for lane in np.unique(a.offset[in_lane]):
-            rows = np.flatnonzero(in_lane & (a.offset == lane))
-            rows = rows[np.argsort(a.p0[rows])]
-            gaps.extend(np.diff(a.p0[rows]) - (a.size[rows[1:], 1] + a.size[rows[:-1], 1]) / 2)
-    gaps = np.array(gaps)
-    assert len(gaps) > 150 and gaps.min() >= STANDSTILL_GAP[0] - 1e-9
-    queued = gaps < STANDSTILL_GAP[0] + 5 * STANDSTILL_GAP[1]
-    assert 0.7 < queued.mean() < 1.0 - 0.5 / QUEUE_VEHICLES
+        for gaps, speed in _lane_gaps(plan, moving):
+            excess.extend(gaps - STANDSTILL_GAP[0] - FOLLOWING_HEADWAY * speed)
+    excess = np.array(excess)
+    assert len(excess) > 50 and excess.min() >= -1e-6
+    following = excess < 5 * STANDSTILL_GAP[1]
+    assert 0.7 < following.mean() < 1.0 - 0.5 / QUEUE_VEHICLES
