@@ -5,14 +5,14 @@ camera and the objects and put points around them. `clutter_parts` places them a
 street as owner -1 scenery, posed in the global frame; nothing here is annotated.
 
 Where things stand (insets are metres from the kerb line into the pavement). Walkers in
-``world._place_pedestrians`` keep to lines 1.35, 2.35 and 3.35 m in (a triad's middle
-walker between the first two), with boxes at most 0.47 m to either side (mean + 2 std half
-width), so nobody walks nearer the kerb than 0.88 m: the **kerb strip** (0-0.88 m in) is the furniture zone, as on real streets, where
-furniture stands 0.45-0.6 m behind the kerb face (AASHTO's 1.5 ft lateral offset). No
-ground-level part crosses the kerb; only parts wholly above `shapes.OVERHEAD_CLEARANCE`
-(4.8 m, above every vehicle box) reach over the carriageway: crowns, lamp arms and
-cross-arms. Hedges and fences stand in front of buildings, at the back of the pavement in
-the first 0.5 m of the setback (buildings are set back 0.5-4 m). Every item is finally
+``world._place_pedestrians`` keep to lines 1.35, 2.35 and 3.35 m in (``world.WALKING_LINES``;
+a triad's middle walker between the first two), with boxes at most 0.47 m to either side
+(mean + 2 std half width), so nobody walks nearer the kerb than 0.88 m: the **kerb strip**
+(0-0.88 m in) is the furniture zone, as on real streets, where furniture stands 0.45-0.6 m
+behind the kerb face (AASHTO's 1.5 ft lateral offset). No ground-level part crosses the kerb;
+only parts wholly above `shapes.OVERHEAD_CLEARANCE` (4.8 m, above every vehicle box) reach
+over the carriageway: crowns, lamp arms and cross-arms. Hedges and fences stand in front of
+buildings, at the back of the pavement in the first 0.5 m of the setback (buildings are set back 0.5-4 m). Every item is finally
 tested against the road users' boxes over the whole scene and the buildings' footprints
 (`keep_clear`), and dropped if it touches one: parked bicycles lean across the kerb strip,
 standing people turn at the back of the pavement.

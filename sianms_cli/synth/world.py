@@ -232,6 +232,9 @@ lines. Groups walk abreast at low density, a line across the walking direction; 
 it into a V, the middle walker slightly behind (Moussaid et al. 2010, whose model keeps 0.8 m
 between neighbours; Zanlungo et al., PLoS ONE 14(12) e0225704, 2019)."""
 V_SETBACK = 0.8  # metres a triad's middle walker keeps behind the two beside it
+WALKING_LINES = (1.35, 1.35 + ABREAST_SPACING, 1.35 + 2 * ABREAST_SPACING)
+"""Insets (m from the kerb) of a pavement's walking lines: the first keeps every walker's box
+clear of the kerb strip (clutter.KERB_STRIP)."""
 AISLE_WALKER_GAP = 48.0
 """Mean gap between people walking along one line of a car park's aisle (two lines per aisle,
 one each way): people walk to and from their cars there, 10-30 m from the road, where the
@@ -771,7 +774,8 @@ def _place_pedestrians(agents: AgentList, rng, street: Street, busyness: float) 
     spans = _turn_spans(street)
     for side in (+1, -1):
         abreast_direction = int(rng.choice([1, -1]))
-        for insets, direction in (((1.35, 2.35), abreast_direction), ((3.35,), -abreast_direction)):
+        streams = ((WALKING_LINES[:2], abreast_direction), (WALKING_LINES[2:], -abreast_direction))
+        for insets, direction in streams:
             speed = float(np.clip(rng.normal(1.35, 0.15), 0.9, 1.8))
             waiting: dict[float, float] = {}  # junction edge -> metres of queue already standing there
             parties = list(_walking_parties(rng, length, WALKER_GAP / busyness, insets, direction))
