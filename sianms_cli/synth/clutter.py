@@ -14,8 +14,8 @@ only parts wholly above `shapes.OVERHEAD_CLEARANCE` (4.8 m, above every vehicle 
 over the carriageway: crowns, lamp arms and cross-arms. Hedges and fences stand in front of
 buildings, at the back of the pavement in the first 0.5 m of the setback (buildings are set
 back 0.5-4 m). Every item is finally tested against the road users' boxes over the whole
-scene and the buildings' footprints (`keep_clear`), and dropped if it touches one: parked bicycles lean across the kerb strip,
-standing people turn at the back of the pavement.
+scene and the buildings' footprints (`keep_clear`), and dropped if it touches one: parked
+bicycles lean across the kerb strip, standing people turn at the back of the pavement.
 
 Densities, per street side unless said otherwise:
 
