@@ -96,15 +96,25 @@ def reidentification(boxes: AllBoxes) -> dict[str, dict[str, float]]:
     """Pair precision / recall / F1 of siaNMS's kept matches against ground-truth identity.
 
     The pairs to find are the oracle's (same instance, both candidates under the same rule),
-    before the frustum-overlap dismissal; the dismissals are counted separately.
+    before the frustum-overlap dismissal; the dismissals are counted separately, with how many
+    of them were right. A wrong kept match is counted by what went wrong:
+    ``wrong_without_partner`` when neither detection is in a true pair (no right match existed
+    for them: only ``dis_thr`` could have refused it), ``wrong_partner_passed_over`` when one
+    of them is (the embedding or the assignment passed its true partner over).
     """
     oracle = boxes.kind == ORACLE
+    partnered = np.union1d(boxes.detection_a[oracle], boxes.detection_b[oracle])
+    has_partner = np.isin(boxes.detection_a, partnered) | np.isin(boxes.detection_b, partnered)
     out = {}
     for kind in (SIANMS, ORACLE):
         mine = boxes.kind == kind
         kept = mine & ~boxes.dismissed
+        wrong = kept & ~boxes.correct
         figures = pair_quality(int(kept.sum()), int((kept & boxes.correct).sum()), int(oracle.sum()))
+        figures["wrong_without_partner"] = int((wrong & ~has_partner).sum())
+        figures["wrong_partner_passed_over"] = int((wrong & has_partner).sum())
         figures["dismissed"] = int((mine & boxes.dismissed).sum())
+        figures["dismissed_right"] = int((mine & boxes.dismissed & boxes.correct).sum())
         out[kind] = figures
     return out
 

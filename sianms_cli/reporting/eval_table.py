@@ -26,6 +26,9 @@ PAPER_TABLE_I = {  # §V, Table I: F-PointNets on nuScenes val, car
                 "sianms": (49.0, 0.287, 18.0, 0.253)},
 }
 COLUMNS = ("AP", "ATE", "ASE", "AOE")
+REID_WRONG_COLUMNS = ("wrong, no true partner", "wrong, partner passed over", "dismissed (frustums apart)",
+                      "dismissed but right")
+REID_WRONG_FIGURES = ("wrong_without_partner", "wrong_partner_passed_over", "dismissed", "dismissed_right")
 
 
 def class_figures(report: MetricsReport, region: str, name: str) -> dict[str, float | int | None]:
@@ -130,12 +133,19 @@ def table_markdown(table: Mapping[str, Any]) -> str:
             lines.append(f"| {m} | " + " | ".join(format_cell(table["regions"][p][m][name]["AP"], "AP") for p in pairs) + " |")
     if table["reidentification"]:
         lines += ["", "Re-identification against ground-truth identity (pairs to find: the oracle's):", "",
-                  "| matcher | matched | correct | to find | precision | recall | F1 | dismissed (frustums apart) |",
-                  "|---|---|---|---|---|---|---|---|"]
+                  "| matcher | matched | correct | to find | precision | recall | F1 | " + " | ".join(REID_WRONG_COLUMNS) + " |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|"]
         for matcher, f in table["reidentification"].items():
             lines.append(f"| {matcher} | {f['pairs_matched']} | {f['pairs_correct']} | {f['pairs_true']} | "
-                         f"{format_ratio(f['precision'])} | {format_ratio(f['recall'])} | {format_ratio(f['f1'])} | {f['dismissed']} |")
+                         f"{format_ratio(f['precision'])} | {format_ratio(f['recall'])} | {format_ratio(f['f1'])} | "
+                         + " | ".join(reid_wrong_cells(f)) + " |")
     return "\n".join(lines) + "\n"
+
+
+def reid_wrong_cells(figures: Mapping[str, Any]) -> list[str]:
+    """What went wrong in a matcher's pairs (:func:`~sianms_cli.pipelines.finish.reidentification`);
+    "-" for a figure an older evaluation did not record."""
+    return [str(figures.get(name, "-")) for name in REID_WRONG_FIGURES]
 
 
 def pair_label(region: str) -> str:

@@ -48,9 +48,11 @@ from sianms_cli.reporting.eval_table import (
     COLUMNS,
     PAPER_TABLE_I,
     REGIONS_SHOWN,
+    REID_WRONG_COLUMNS,
     format_cell,
     format_ratio,
     pair_label,
+    reid_wrong_cells,
 )
 from sianms_cli.reporting.report_html import Block, Figure, Heading, Paragraph, Table, render_html, render_markdown
 
@@ -383,11 +385,14 @@ def reid_blocks(summary: Mapping[str, Any]) -> list[Block]:
         return []
     rows = [[matcher, str(f.get("pairs_matched", "-")), str(f.get("pairs_correct", "-")), str(f.get("pairs_true", "-")),
              format_ratio(f["precision"]), format_ratio(f["recall"]), format_ratio(f["f1"]),
-             str(f.get("dismissed", "-"))] for matcher, f in reid.items()]
+             *reid_wrong_cells(f)] for matcher, f in reid.items()]
     return [Heading("Re-identification"),
-            Paragraph("Against ground-truth identity; the pairs to find are the oracle's."),
+            Paragraph("Against ground-truth identity; the pairs to find are the oracle's. A wrong match has "
+                      "\"no true partner\" when neither of its detections has its own object among the other "
+                      "camera's candidates (only the distance threshold could have refused it); else it passed a "
+                      "true partner over."),
             Table("reidentification", ["matcher", "matched", "correct", "to find", "precision", "recall", "F1",
-                                       "dismissed (frustums apart)"], rows)]
+                                       *REID_WRONG_COLUMNS], rows)]
 
 
 def duplicates_blocks(summary: Mapping[str, Any]) -> list[Block]:

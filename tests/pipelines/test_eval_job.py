@@ -79,6 +79,9 @@ def test_the_oracle_matches_only_one_instance_and_sianms_is_scored_against_it(ev
     assert oracle and all(row["correct"] for row in oracle)
     reid = result.table["reidentification"]
     assert reid["oracle"]["precision"] == 1.0 and reid["sianms"]["pairs_true"] == len(oracle)
+    sianms = reid["sianms"]
+    assert (sianms["wrong_without_partner"] + sianms["wrong_partner_passed_over"]
+            == sianms["pairs_matched"] - sianms["pairs_correct"])
     single = [row for row in rows if row["kind"] == "single"]
     assert all(row["detection_b"] is None and row["translation"] is not None for row in single)
 
