@@ -36,11 +36,26 @@ class OutputError(SianmsError):
 
 
 def describe_os_error(error: OSError, path: str | Path | None = None) -> str:
-    """``<path>: <cause>`` for an OSError, the path taken from the error when not given."""
+    """``<path>: <cause>`` for an OSError, the path taken from the error when not given.
+
+    For ENOTDIR the path is the file that stands where a folder must be, found along the
+    path: ``t.sh: not a folder`` rather than ``t.sh/x/y.json: Not a directory``.
+    """
     where = path if path is not None else error.filename
+    if error.errno == errno.ENOTDIR and where is not None:
+        return f"{_first_non_folder(Path(where))}: not a folder"
     # The errno's own words: libraries such as pyarrow put a longer text in strerror.
     cause = os.strerror(error.errno) if error.errno else (error.strerror or str(error) or type(error).__name__)
     return f"{where}: {cause}" if where is not None else cause
+
+
+def _first_non_folder(path: Path) -> Path:
+    """The first of ``path``'s parents, or ``path`` itself, that exists and is not a folder;
+    ``path`` when none is (the file went away since the error)."""
+    for candidate in (*reversed(path.parents), path):
+        if candidate.exists() and not candidate.is_dir():
+            return candidate
+    return path
 
 
 @contextmanager
@@ -61,7 +76,12 @@ def make_folder(path: str | Path) -> Path:
     """Create ``path`` and its parents as the umask allows; an existing folder is fine."""
     path = Path(path)
     with os_errors_as_output_errors(path):
-        path.mkdir(parents=True, exist_ok=True)
+        try:
+            path.mkdir(parents=True, exist_ok=True)
+        except FileExistsError as error:
+            # With exist_ok, mkdir raises this only when ``path`` is there but is not a folder:
+            # ENOTDIR says so (describe_os_error), EEXIST's "File exists" misleads.
+            raise NotADirectoryError(errno.ENOTDIR, os.strerror(errno.ENOTDIR), str(path)) from error
     return path
 
 

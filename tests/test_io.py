@@ -75,6 +75,28 @@ def test_a_folder_where_a_file_should_be(tmp_path):
         io.check_writable_output(tmp_path / "x.json", overwrite=True)
 
 
+@pytest.mark.parametrize("under", ["x.json", "deeper/x.json"])
+def test_a_file_where_a_folder_should_be(tmp_path, under):
+    # mkdir says "File exists" for the file itself and "Not a directory" below it; both name
+    # the file in the way.
+    (tmp_path / "t.sh").write_text("")
+    with pytest.raises(io.OutputError) as caught:
+        io.write_json(tmp_path / "t.sh" / under, {})
+    assert str(caught.value) == f"cannot write {tmp_path}/t.sh: not a folder"
+    with pytest.raises(io.OutputError) as caught:
+        io.staging_folder(tmp_path / "t.sh" / under)
+    assert str(caught.value) == f"cannot write {tmp_path}/t.sh: not a folder"
+
+
+def test_describe_os_error_names_the_file_in_the_way(tmp_path, monkeypatch):
+    (tmp_path / "t.sh").write_text("")
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(NotADirectoryError) as caught:
+        open("t.sh/a/b.json", "w")
+    assert io.describe_os_error(caught.value) == "t.sh: not a folder"
+    assert io.describe_os_error(caught.value, "t.sh/a") == "t.sh: not a folder"
+
+
 def test_check_writable_output_refuses_existing_file_without_overwrite(tmp_path):
     path = tmp_path / "x.json"
     path.write_text("{}")

@@ -199,7 +199,7 @@ def _value_checks(boxes: np.ndarray) -> list[tuple[str, np.ndarray, Callable[[in
             ("detection_name", (boxes["label"] < 0) | (boxes["label"] >= len(DETECTION_NAMES)),
              lambda r: f"unknown class index {boxes['label'][r]}"),
             ("detection_score", ~(np.isfinite(score) & (score >= 0) & (score <= 1)),
-             lambda r: f"must be a number in [0, 1], got {score[r]!r}"),
+             lambda r: f"must be a number in [0, 1], got {score[r].item()!r}"),
             ("attribute_name", (boxes["attribute"] < NO_ATTRIBUTE) | (boxes["attribute"] >= len(ATTRIBUTE_NAMES)),
              lambda r: f"unknown attribute index {boxes['attribute'][r]}"),
         ]
@@ -222,6 +222,8 @@ def read_results(path: str | Path, *, max_boxes_per_sample: int = MAX_BOXES_PER_
         token, box index and field; DataFormatError for a missing file or invalid JSON.
     """
     path = Path(path)
+    if path.is_dir():
+        raise DataFormatError(path, "is a folder, not a results file")
     if not path.is_file():
         raise DataFormatError(path, "results file not found")
     if path.stat().st_size >= SCAN_MIN_BYTES:

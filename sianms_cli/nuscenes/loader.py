@@ -18,8 +18,10 @@ file as Python objects: a trainval-sized load peaks at about twice what the load
 
 Loading validates everything the toolkit relies on and stops at the first problem with one
 :class:`~sianms_cli.errors.DataFormatError` naming the file, the record token and the field.
-Fields outside the schema and optional extra tables (lidarseg, panoptic, image annotations)
-are ignored.
+Beyond each field's kind it refuses values no real record holds, which would corrupt what is
+computed from them (:data:`_VALUE_RULES`): a box size of 0 or less, a negative point count, a
+rotation quaternion that is zero or too large or small to normalise. Fields outside the schema
+and optional extra tables (lidarseg, panoptic, image annotations) are ignored.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from functools import cached_property
 from itertools import chain
 from operator import itemgetter
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any, Callable, Iterable, Mapping, NamedTuple
 
 import numpy as np
 
@@ -151,6 +153,65 @@ def _convert(values: list, kind: Field) -> Any:
     return _token_lists(values)
 
 
+# Squares of components within these bounds neither overflow nor underflow in float64, so the
+# norm that every consumer divides by (sianms_cli.geometry.quaternion) is finite and non-zero.
+_ROTATION_COMPONENT_RANGE = (1e-150, 1e150)
+
+
+class _ValueRule(NamedTuple):
+    """What a field's values must be beyond their kind: ``holds`` maps the field's column
+    (N, ...) to (N,) bool, true where the value is acceptable."""
+
+    holds: Callable[[np.ndarray], np.ndarray]
+    expectation: str
+
+
+def _all_positive(column: np.ndarray) -> np.ndarray:
+    return (column > 0).all(axis=1)
+
+
+def _non_negative(column: np.ndarray) -> np.ndarray:
+    return column >= 0
+
+
+def _normalisable(column: np.ndarray) -> np.ndarray:
+    # The largest component bounds the norm within a factor of 2 and is computed without
+    # overflow, unlike the norm itself.
+    largest = np.abs(column).max(axis=1)
+    low, high = _ROTATION_COMPONENT_RANGE
+    return (largest >= low) & (largest <= high)
+
+
+_ROTATION_RULE = _ValueRule(
+    _normalisable,
+    "a quaternion that can be normalised (largest |component| in "
+    f"[{_ROTATION_COMPONENT_RANGE[0]:g}, {_ROTATION_COMPONENT_RANGE[1]:g}])",
+)
+_COUNT_RULE = _ValueRule(_non_negative, "a count of 0 or more")
+
+_VALUE_RULES: dict[tuple[str, str], _ValueRule] = {
+    ("calibrated_sensor", "rotation"): _ROTATION_RULE,
+    ("ego_pose", "rotation"): _ROTATION_RULE,
+    ("sample_annotation", "size"): _ValueRule(_all_positive, "3 sizes greater than 0"),
+    ("sample_annotation", "rotation"): _ROTATION_RULE,
+    ("sample_annotation", "num_lidar_pts"): _COUNT_RULE,
+    ("sample_annotation", "num_radar_pts"): _COUNT_RULE,
+}
+"""(table, field) -> the rule its values follow beyond their kind; translations need none
+beyond being finite, which their kind already requires."""
+
+
+def _check_rule(path: Path, records: list, first: int, values: list, field: str,
+                column: np.ndarray, rule: _ValueRule) -> None:
+    """Raise the error for the first value of ``column`` that breaks ``rule``, quoting it as
+    the file holds it (``values``)."""
+    broken = ~rule.holds(column)
+    if broken.any():
+        i = _first_row(broken)
+        raise _record_error(path, records, i, first, field,
+                            f"expected {rule.expectation}, got {values[i]!r}")
+
+
 def _concatenate(pieces: list) -> Any:
     if isinstance(pieces[0], tuple):
         return tuple(np.concatenate(parts) for parts in zip(*pieces))
@@ -207,6 +268,9 @@ class _ParsedTable:
                 column = _convert(values, kind)
                 if column is None:
                     raise _diagnose(self.path, records, first, values, field, kind)
+                rule = _VALUE_RULES.get((self.name, field))
+                if rule is not None:
+                    _check_rule(self.path, records, first, values, field, column, rule)
                 del values
                 if kind.kind in _REF_KINDS and kind.table in parsed:
                     column = self._resolve(field, kind, column, parsed[kind.table].index,

@@ -205,6 +205,21 @@ def test_missing_file_and_other_top_level_fields(tmp_path):
     assert len(read_results(write(tmp_path, "\ufeff" + json.dumps(document))).boxes) == 3  # BOM too
 
 
+def test_a_folder_is_not_a_results_file(tmp_path):
+    with pytest.raises(DataFormatError) as caught:
+        read_results(tmp_path)
+    assert str(caught.value) == f"{tmp_path}: is a folder, not a results file"
+
+
+def test_a_bad_score_prints_as_a_plain_number(tmp_path):
+    # Not numpy's repr (np.float64(1.5)).
+    path = write(tmp_path, submission(sample_c=[box("sample_c", detection_score=1.5)]))
+    with pytest.raises(ResultsFormatError) as caught:
+        read_results(path)
+    assert str(caught.value) == (f"{path}: record sample_c: field 'detection_score': box 0: "
+                                 "must be a number in [0, 1], got 1.5")
+
+
 def test_validate_in_memory_results_names_the_box():
     boxes = make_boxes([0, 0, 1], "car", [[0, 0, 0], [1, 1, 1], [2, 2, 2]], score=0.5)
     boxes["rotation"][2] = [0.0, 0.0, 0.0, 2.0]

@@ -1,5 +1,6 @@
 import math
 import re
+import warnings
 
 import numpy as np
 import pytest
@@ -255,6 +256,42 @@ def test_nan_is_read_then_named_by_record_and_field(tiny_dataroot, rewrite_table
         "expected a list of 3 finite numbers, got [nan, 2.0, 0.5] (list)")
 
 
+_ROTATION_PROBLEM = ("expected a quaternion that can be normalised "
+                     "(largest |component| in [1e-150, 1e+150]), got ")
+
+
+@pytest.mark.parametrize("table, row, field, value, problem", [
+    ("sample_annotation", 1, "size", [-1, 2, 3], "expected 3 sizes greater than 0, got [-1, 2, 3]"),
+    ("sample_annotation", 2, "size", [1.5, 0.0, 3], "expected 3 sizes greater than 0, got [1.5, 0.0, 3]"),
+    ("sample_annotation", 0, "num_lidar_pts", -500, "expected a count of 0 or more, got -500"),
+    ("sample_annotation", 5, "num_radar_pts", -1, "expected a count of 0 or more, got -1"),
+    ("sample_annotation", 3, "rotation", [0, 0, 0, 0], _ROTATION_PROBLEM + "[0, 0, 0, 0]"),
+    ("sample_annotation", 4, "rotation", [1e300, 1e300, 0, 0], _ROTATION_PROBLEM + "[1e+300, 1e+300, 0, 0]"),
+    ("ego_pose", 2, "rotation", [0.0, 0.0, 0.0, 0.0], _ROTATION_PROBLEM + "[0.0, 0.0, 0.0, 0.0]"),
+    ("ego_pose", 1, "rotation", [1e-200, 0, 0, 0], _ROTATION_PROBLEM + "[1e-200, 0, 0, 0]"),
+    ("calibrated_sensor", 1, "rotation", [0, 0, 0, 0], _ROTATION_PROBLEM + "[0, 0, 0, 0]"),
+])
+def test_values_no_record_can_hold(tiny_dataroot, rewrite_table, tiny_records, table, row, field,
+                                   value, problem):
+    path = rewrite_table(table, lambda records: records[row].__setitem__(field, value))
+    token = tiny_records[table][row]["token"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no overflow on the way to the error
+        error = _load_error(tiny_dataroot)
+    assert str(error) == f"{path}: record {token}: field '{field}': {problem}"
+
+
+def test_values_within_the_rules_load(tiny_dataroot, rewrite_table):
+    # An unnormalised rotation is a rotation (the devkit normalises too); no points is a count.
+    def edge_values(records):
+        records[0].update(rotation=[2.0, 0, 0, 1e-300], num_lidar_pts=0, num_radar_pts=0)
+        records[1].update(rotation=[0, 0, 0, -1e150], size=[1e-9, 1e-9, 1e-9])
+
+    rewrite_table("sample_annotation", edge_values)
+    annotations = NuScenesDB(tiny_dataroot, VERSION).table("sample_annotation")
+    assert annotations.column("rotation")[:2].tolist() == [[2.0, 0, 0, 1e-300], [0, 0, 0, -1e150]]
+
+
 def test_empty_token_names_the_position(tiny_dataroot, rewrite_table):
     path = rewrite_table("log", lambda records: records[0].__setitem__("token", ""))
     assert str(_load_error(tiny_dataroot)) == (
@@ -435,6 +472,14 @@ def test_duplicates_and_dangling_references_across_pieces(small_pieces, tiny_dat
     assert str(_load_error(tiny_dataroot)) == (
         f"{path}: record {tokens[11]}: field 'sample_token': refers to sample token 'ghost', "
         "which is not in sample.json")
+
+
+def test_value_rules_name_positions_in_later_pieces(small_pieces, tiny_dataroot, rewrite_table,
+                                                    tiny_records):
+    path = rewrite_table("ego_pose", lambda records: records[11].__setitem__("rotation", [0, 0, 0, 0]))
+    token = tiny_records["ego_pose"][11]["token"]
+    assert str(_load_error(tiny_dataroot)) == (
+        f"{path}: record {token}: field 'rotation': {_ROTATION_PROBLEM}[0, 0, 0, 0]")
 
 
 def test_a_large_file_that_is_not_a_list(small_pieces, tiny_dataroot, rewrite_table):

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from sianms_cli.geometry.quaternion import yaw_to_quat
+from sianms_cli.io import OutputError
 from sianms_cli.nuscenes.classes import CATEGORY_TO_DETECTION, DETECTION_CLASSES
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.reporting.dataset_summary import (
@@ -169,3 +170,10 @@ def test_run_writes_the_json_it_returns(tiny_dataroot, tmp_path):
     out = tmp_path / "info.json"
     summary = run(InfoConfig(str(tiny_dataroot), max_sweeps=0), out)
     assert json.loads(out.read_text()) == json.loads(json.dumps(summary))
+
+
+def test_run_names_a_file_where_the_out_folder_should_be(tiny_dataroot, tmp_path):
+    (tmp_path / "t.sh").write_text("")
+    with pytest.raises(OutputError) as caught:
+        run(InfoConfig(str(tiny_dataroot), max_sweeps=0), tmp_path / "t.sh" / "x.json")
+    assert str(caught.value) == f"cannot write {tmp_path}/t.sh: not a folder"
