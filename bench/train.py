@@ -48,12 +48,14 @@ def make_cache(root: Path, scenes: int, seconds: float, scale: float) -> Path:
 
 
 def copies(cache: Path, times: int, out: Path) -> Path:
-    """The cache's detections and pairs shards ``times`` over, under distinct names."""
+    """The cache's detections and pairs shards ``times`` over, under distinct names, and its
+    manifest (training reads only a complete cache)."""
     for folder in ("detections", "pairs"):
         (out / folder).mkdir(parents=True)
         for path in sorted((cache / folder).glob("*.parquet")):
             for k in range(times):
                 shutil.copyfile(path, out / folder / f"{path.stem}-{k}.parquet")
+    shutil.copyfile(cache / "manifest.json", out / "manifest.json")
     return out
 
 

@@ -36,7 +36,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, NamedTuple
 
-from sianms_cli.errors import OutputExistsError, SianmsError
+from sianms_cli.errors import OutputExistsError, SianmsError, check_seed
 from sianms_cli.io import make_folder, read_json, write_json
 from sianms_cli.progress import SILENT, Progress
 
@@ -105,8 +105,7 @@ class DemoConfig:
     fpointnet_epochs: int | None = None
 
     def __post_init__(self) -> None:
-        if self.seed < 0:
-            raise SianmsError(f"--seed must be at least 0, got {self.seed}")
+        check_seed(self.seed)
         if self.version not in VERSIONS:
             raise SianmsError(f"--version must be one of {', '.join(VERSIONS)}, got {self.version}")
         most = VERSIONS[self.version].max_scenes
@@ -287,6 +286,8 @@ def run(config: DemoConfig, out: str | Path, *, overwrite: bool = False, progres
         on_stage: told when a stage starts, ends (with its wall time) or is skipped.
         workers: processes for `synth` (its output does not depend on it).
     """
+    if workers < 1:
+        raise SianmsError(f"--workers must be at least 1, got {workers}")
     log = on_stage or (lambda stage, event, seconds: None)
     out = Path(out)
     record = claim_output(out, config.resolved(), overwrite)

@@ -14,6 +14,18 @@ class SianmsError(Exception):
 
     exit_code = 2
 
+    def __reduce__(self):
+        # Raised in a worker process, the error crosses back to the parent by pickling; the
+        # default would call __init__ with the message alone, which subclasses do not take.
+        return _rebuild, (type(self), self.args, self.__dict__)
+
+
+def _rebuild(cls: type, args: tuple, state: dict) -> SianmsError:
+    error = cls.__new__(cls)
+    Exception.__init__(error, *args)
+    error.__dict__.update(state)
+    return error
+
 
 class DataFormatError(SianmsError):
     """A file, or one record and field in it, does not follow its format.
@@ -44,3 +56,14 @@ class DataFormatError(SianmsError):
 
 class OutputExistsError(SianmsError):
     """A command was asked to write where finished outputs already exist."""
+
+
+SEED_LIMIT = 2**63
+"""Seeds are below this: every generator they feed (numpy's, torch's) and every file that
+records them (JSON, Parquet int64) takes them whole."""
+
+
+def check_seed(seed: int) -> None:
+    """Refuse a ``--seed`` outside [0, 2**63)."""
+    if not 0 <= seed < SEED_LIMIT:
+        raise SianmsError(f"--seed must be between 0 and 2**63 - 1, got {seed}")

@@ -5,7 +5,9 @@ ignore SIGINT, so a Ctrl-C in the terminal (sent to the whole process group) rea
 parent only; :func:`terminate_on_sigterm` makes SIGTERM raise :class:`Terminated` (a
 KeyboardInterrupt) there too. Either way the exception unwinds the parent through its
 cleanup code, and leaving :func:`worker_pool` terminates and joins every worker: no
-process outlives the run and no worker writes after the parent has cleaned up. A caller
+process outlives the run and no worker writes after the parent has cleaned up. A parent
+killed outright (SIGKILL, the OOM killer) cleans nothing up; its workers notice they are
+orphaned and exit within a second. A caller
 that consumes results in a generator wraps it in ``contextlib.closing``, so an interrupt
 between two results also closes the pool before the caller cleans up.
 """
@@ -13,7 +15,10 @@ between two results also closes the pool before the caller cleans up.
 from __future__ import annotations
 
 import multiprocessing
+import os
 import signal
+import threading
+import time
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
@@ -35,9 +40,22 @@ def terminate_on_sigterm() -> None:
     signal.signal(signal.SIGTERM, _raise_terminated)
 
 
-def _start_worker(initializer: Callable[..., None] | None, initargs: tuple) -> None:
+ORPHAN_CHECK_SECONDS = 1.0
+
+
+def _exit_when_orphaned(parent: int) -> None:
+    """Watch (in a daemon thread) for the parent's death, and end this worker within
+    ORPHAN_CHECK_SECONDS of it: a parent killed by SIGKILL runs no cleanup, and its workers
+    would otherwise compute, and write, on their own."""
+    while os.getppid() == parent:
+        time.sleep(ORPHAN_CHECK_SECONDS)
+    os._exit(1)
+
+
+def _start_worker(parent: int, initializer: Callable[..., None] | None, initargs: tuple) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    threading.Thread(target=_exit_when_orphaned, args=(parent,), daemon=True).start()
     if initializer is not None:
         initializer(*initargs)
 
@@ -94,7 +112,7 @@ def worker_pool(
     instead of leaving the run waiting for a result that never comes.
     """
     executor = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_start_worker, initargs=(initializer, initargs))
+                                   initializer=_start_worker, initargs=(os.getpid(), initializer, initargs))
     pool = WorkerPool(executor)
     try:
         yield pool

@@ -1,11 +1,13 @@
 """Worker processes end with the run: on success, on an interrupt, and when one of them dies."""
 
 import os
+import subprocess
+import sys
 import time
 
 import pytest
 
-from sianms_cli.processes import WorkerDied, worker_pool
+from sianms_cli.processes import ORPHAN_CHECK_SECONDS, WorkerDied, worker_pool
 
 
 def test_results_in_order_and_as_they_finish():
@@ -30,3 +32,29 @@ def test_an_interrupt_terminates_running_workers(process_tree):
             workers = process_tree.workers(os.getpid())
             raise KeyboardInterrupt
     assert workers and not [pid for pid in workers if process_tree.alive(pid)]
+
+
+PARENT = """
+import time
+from sianms_cli.processes import worker_pool
+with worker_pool(2) as pool:
+    pool.imap_unordered(time.sleep, [60, 60])
+    time.sleep(60)
+"""
+
+
+def test_workers_of_a_parent_killed_outright_exit_on_their_own(process_tree):
+    parent = subprocess.Popen([sys.executable, "-c", PARENT])
+    try:
+        deadline = time.monotonic() + 60
+        while len(process_tree.workers(parent.pid)) < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        workers = process_tree.workers(parent.pid)
+    finally:
+        parent.kill()  # SIGKILL: no cleanup code runs in the parent
+        parent.wait()
+    assert len(workers) == 2
+    deadline = time.monotonic() + 10 * ORPHAN_CHECK_SECONDS
+    while any(process_tree.alive(pid) for pid in workers) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not [pid for pid in workers if process_tree.alive(pid)]

@@ -23,8 +23,8 @@ def demo_cli(
                                                     "[default: the profile's]."),
     siamese_epochs: Optional[int] = typer.Option(None, help="Siamese epochs [default: the profile's]."),
     fpointnet_epochs: Optional[int] = typer.Option(None, help="Frustum PointNets epochs [default: the profile's]."),
-    threads: Optional[int] = typer.Option(None, help="CPU threads for torch [default: torch's choice]."),
-    workers: int = typer.Option(2, help="Processes for synth (the dataset does not depend on it)."),
+    threads: Optional[int] = typer.Option(None, min=1, help="CPU threads for torch [default: torch's choice]."),
+    workers: int = typer.Option(2, min=1, help="Processes for synth (the dataset does not depend on it)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a demo of another config at --out."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or stage lines."),
     as_json: bool = typer.Option(False, "--json", help="Print the stages' times and the comparison as JSON."),
@@ -40,7 +40,7 @@ def demo_cli(
     if threads is not None:
         import torch
 
-        torch.set_num_threads(max(1, threads))
+        torch.set_num_threads(threads)
     config = DemoConfig(quick=quick, seed=seed, version=version, scenes=scenes, siamese_epochs=siamese_epochs,
                         fpointnet_epochs=fpointnet_epochs)
 

@@ -30,7 +30,7 @@ def eval_cli(
                                                        "[default: the siamese checkpoint's]."),
     max_distance: float = typer.Option(50.0, help="Maximum detection distance (m): the multi-frustum circle."),
     seed: int = typer.Option(0, help="Seed of the point sampling (same seed, same results)."),
-    device: str = typer.Option("cpu", help="Torch device for the networks (cpu, cuda, cuda:N)."),
+    device: str = typer.Option("cpu", help="Torch device for the networks (auto, cpu, cuda, cuda:N)."),
     pictures: int = typer.Option(4, help="Samples drawn in bird's-eye view, one panel per method (most duplicates "
                                          "first)."),
     workers: int = typer.Option(1, help="Processes for the scenes (the output does not depend on it)."),

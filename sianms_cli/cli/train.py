@@ -25,7 +25,7 @@ CACHE = typer.Option(..., help="Training cache (`sianms prepare` of a training s
 OUT = typer.Option(..., help="Run folder: checkpoint.pt, config.json, metrics.csv, curves.png.")
 SEED = typer.Option(0, help="Seed of every random source (same seed, same weights on a CPU).")
 DEVICE = typer.Option("auto", help="auto (CUDA, then CPU), cpu, cuda or cuda:N.")
-THREADS = typer.Option(None, help="CPU threads for torch [default: torch's choice].")
+THREADS = typer.Option(None, min=1, help="CPU threads for torch [default: torch's choice].")
 RESUME = typer.Option(False, "--resume", help="Continue the run at --out from its last checkpoint.")
 OVERWRITE = typer.Option(False, "--overwrite", help="Replace the run at --out.")
 QUIET = typer.Option(False, "--quiet", help="No progress bar, no per-epoch lines.")
@@ -37,7 +37,7 @@ def _use_threads(threads: int | None) -> None:
     if threads is not None:
         import torch
 
-        torch.set_num_threads(max(1, threads))
+        torch.set_num_threads(threads)
 
 
 def train_command(name: str) -> Callable[[Callable], Callable]:

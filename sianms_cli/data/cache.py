@@ -12,17 +12,22 @@ Layout of a cache folder::
 
 A shard's files are written under hidden temporary names (``.<shard>.parquet.<pid>.<random>.partial``),
 one row group per sample, renamed when complete, and the shard counts as finished only once its
-completion record (with the files' row counts and SHA-256) exists. A rerun skips finished
-shards and rewrites the others; readers (which skip hidden files and match ``*.parquet``)
-never see a half-written file. The manifest says ``complete`` only when every shard of the
-split is finished.
+completion record (with the files' row counts, sizes and SHA-256) exists and every file still
+has the recorded size. A rerun skips finished shards and rewrites the others; readers (which
+skip hidden files and match ``*.parquet``) never see a half-written file. The manifest says
+``complete`` only when every shard of the split is finished.
+
+A shard file damaged after it was written (truncated by a full disk or a partial copy) is
+read through :func:`read_shard_table`, which turns Arrow's error into a DataFormatError
+naming the file.
 """
 
 from __future__ import annotations
 
 import json
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 import pyarrow as pa
@@ -95,8 +100,9 @@ class ShardWriter:
                 self._writers[name].close()
             del self._writers[name]
             self._files.pop(name).commit()
+            final = self._final(name)
             files[f"{name}/{self.shard}.parquet"] = {
-                "rows": self.rows[name], "sha256": sha256_of(self._final(name))}
+                "rows": self.rows[name], "bytes": final.stat().st_size, "sha256": sha256_of(final)}
         record = {"shard": self.shard, "files": files, **extra}
         write_json(self.root / SHARDS / f"{self.shard}.json", record)
         return record
@@ -109,11 +115,46 @@ class ShardWriter:
             self._abandon()
 
 
-def shard_done(root: Path, shard: str) -> bool:
-    """A shard is finished when its completion record and all its files exist."""
+def finished_record(root: Path, shard: str) -> dict[str, Any] | None:
+    """The completion record of a finished shard; None when the shard is not finished.
+
+    Finished: the record is readable and every file of the shard exists with the size the
+    record gives. Sizes, not SHA-256: hashing a 100 GB cache on every rerun would cost about
+    as much as preparing it, and a truncated or partly copied file changes its size. Records
+    written before sizes were recorded give none; their files must have a readable Parquet
+    footer instead (a truncated file loses it).
+    """
     root = Path(root)
-    return (root / SHARDS / f"{shard}.json").is_file() and all(
-        (root / name / f"{shard}.parquet").is_file() for name in DATASETS)
+    try:
+        record = json.loads((root / SHARDS / f"{shard}.json").read_text(encoding="utf-8"))
+    except (FileNotFoundError, ValueError):  # absent, or not JSON: the shard is redone
+        return None
+    files = record.get("files") if isinstance(record, dict) else None
+    if not isinstance(files, dict):
+        return None
+    for name in DATASETS:
+        path = root / name / f"{shard}.parquet"
+        if not path.is_file():
+            return None
+        size = (files.get(f"{name}/{shard}.parquet") or {}).get("bytes")
+        intact = path.stat().st_size == size if size is not None else _has_footer(path)
+        if not intact:
+            return None
+    return record
+
+
+def _has_footer(path: Path) -> bool:
+    """Whether ``path`` ends in a readable Parquet footer (a few kB read, not the file)."""
+    try:
+        pq.read_metadata(path)
+    except (pa.ArrowException, OSError):
+        return False
+    return True
+
+
+def shard_done(root: Path, shard: str) -> bool:
+    """Whether a shard is finished (:func:`finished_record`)."""
+    return finished_record(root, shard) is not None
 
 
 def clear_shard(root: Path, shard: str) -> None:
@@ -132,9 +173,9 @@ def shard_records(root: Path) -> dict[str, dict[str, Any]]:
     records = {}
     if folder.is_dir():
         for path in sorted(folder.glob("*.json")):
-            shard = path.stem
-            if shard_done(root, shard):
-                records[shard] = json.loads(path.read_text(encoding="utf-8"))
+            record = finished_record(root, path.stem)
+            if record is not None:
+                records[path.stem] = record
     return records
 
 
@@ -188,18 +229,56 @@ def write_manifest(root: Path, config: dict[str, Any], expected_shards: list[str
     return manifest
 
 
+def complete_manifest(cache: str | Path) -> dict[str, Any]:
+    """The manifest of a cache a command reads, checked to be a `sianms prepare` cache that is complete.
+
+    A cache whose prepare was interrupted holds only some of its split's shards; reading it
+    would silently use part of the data.
+    """
+    path = Path(cache) / MANIFEST
+    manifest = read_manifest(Path(cache))
+    if manifest is None:
+        raise DataFormatError(path, "not found: not a `sianms prepare` cache (run `sianms prepare` first)")
+    if manifest.get("complete") is not True:
+        missing = manifest.get("missing_shards")
+        expected = manifest.get("shards_expected")
+        count = f"{len(missing)} of {expected}" if isinstance(missing, list) and isinstance(expected, int) else "some"
+        raise DataFormatError(path, f"the cache is not complete ({count} shards missing); rerun `sianms prepare` "
+                                    "with the same flags to finish it", field="complete")
+    return manifest
+
+
+@contextmanager
+def reading_shard(path: Path) -> Iterator[None]:
+    """Turn Arrow's error on a damaged shard file (truncated, overwritten) into a DataFormatError naming it."""
+    try:
+        yield
+    except (FileNotFoundError, PermissionError):
+        raise  # the command's OS-error line says these better
+    except (pa.ArrowException, OSError):  # Arrow reports a bad footer or page header as either
+        raise DataFormatError(path, "not a readable Parquet file; rerun `sianms prepare` on the cache to rebuild "
+                                    "it") from None
+
+
+def read_shard_table(path: Path, columns: list[str] | None = None, filters: list | None = None) -> pa.Table:
+    """``pq.read_table`` of one cache shard file; a damaged file raises DataFormatError naming it."""
+    with reading_shard(path):
+        return pq.read_table(path, columns=columns, filters=filters)
+
+
 def read_dataset(root: Path, name: str, columns: list[str] | None = None) -> pa.Table:
     """All finished shard files of dataset ``name`` as one table (shard-name order)."""
     folder = Path(root) / name
     paths = sorted(folder.glob("*.parquet"))
     if not paths:
         raise DataFormatError(folder, f"no finished {name} shard files (*.parquet)")
-    return pa.concat_tables([pq.read_table(path, columns=columns) for path in paths])
+    return pa.concat_tables([read_shard_table(path, columns=columns) for path in paths])
 
 
 def roi_feature_shape(path: Path) -> tuple[int, ...]:
     """(C, PH, PW) of the ROI features in a detections file, from its metadata."""
-    metadata = pq.read_schema(path).metadata or {}
+    with reading_shard(path):
+        metadata = pq.read_schema(path).metadata or {}
     shape = metadata.get(b"sianms.roi_feature_shape")
     if shape is None:
         raise DataFormatError(path, "no sianms.roi_feature_shape in the schema metadata")

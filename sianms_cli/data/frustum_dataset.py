@@ -48,6 +48,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from sianms_cli.data.cache import read_shard_table
 from sianms_cli.errors import DataFormatError
 from sianms_cli.nuscenes.classes import PAPER_CLASSES
 
@@ -128,7 +129,7 @@ def _box_heights(frustums_path: Path, detection_id: pa.ChunkedArray) -> np.ndarr
     path = frustums_path.parent.parent / "detections" / frustums_path.name
     if not path.is_file():
         raise DataFormatError(path, "missing: the frustums shard has no detections file (needed for box heights)")
-    table = pq.read_table(path, columns=["detection_id", "y1", "y2"])
+    table = read_shard_table(path, columns=["detection_id", "y1", "y2"])
     where = pc.index_in(detection_id, value_set=table["detection_id"].combine_chunks())
     if where.null_count:
         raise DataFormatError(path, "a frustum's detection is missing from the detections file", field="detection_id")
@@ -138,7 +139,7 @@ def _box_heights(frustums_path: Path, detection_id: pa.ChunkedArray) -> np.ndarr
 
 def read_shard(path: Path, selection: FrustumSelection) -> ShardFrustums:
     """The kept frustums of one shard file (module docstring), converted to F-PointNets' conventions."""
-    table = pq.read_table(path, columns=FRUSTUM_COLUMNS)
+    table = read_shard_table(path, columns=FRUSTUM_COLUMNS)
     if selection.min_box_height > 0:
         table = table.filter(pa.array(_box_heights(path, table["detection_id"]) >= selection.min_box_height))
     return frustums_of_table(table, selection)

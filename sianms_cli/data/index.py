@@ -12,8 +12,7 @@ from __future__ import annotations
 from collections import defaultdict
 from pathlib import Path
 
-import pyarrow.parquet as pq
-
+from sianms_cli.data.cache import read_shard_table
 from sianms_cli.errors import DataFormatError
 
 PairIndex = dict[tuple[str, str], dict[str, list[str]]]
@@ -30,7 +29,7 @@ def build_pair_index(cache: str | Path) -> PairIndex:
         raise DataFormatError(folder, "no finished detections shard files (*.parquet)")
     index: PairIndex = defaultdict(lambda: defaultdict(list))
     for path in paths:
-        table = pq.read_table(path, columns=["scene_token", "instance_token", "detection_id", "overlap_pairs"])
+        table = read_shard_table(path, columns=["scene_token", "instance_token", "detection_id", "overlap_pairs"])
         for scene, instance, detection, pairs in zip(*(table.column(i).to_pylist() for i in range(4))):
             if instance is None:
                 continue

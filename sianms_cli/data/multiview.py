@@ -55,7 +55,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from sianms_cli.data.cache import read_manifest, shard_records
+from sianms_cli.data.cache import complete_manifest, read_shard_table, shard_records
 from sianms_cli.data.frustum_dataset import FrustumSelection, frustum_shards
 from sianms_cli.data.schemas import FRUSTUMS_SCHEMA, with_metadata
 from sianms_cli.errors import DataFormatError, SianmsError
@@ -104,11 +104,7 @@ class MultiviewSettings:
 
 def multiview_settings(cache: str | Path, dataroot: str, max_distance: float) -> MultiviewSettings:
     """The settings of ``cache``'s union frustums, its LiDAR settings read from its manifest."""
-    manifest = read_manifest(Path(cache))
-    if manifest is None:
-        raise DataFormatError(Path(cache), "not a sianms cache (no manifest.json): --multiview needs the "
-                                           "cache's LiDAR settings; run `sianms prepare` first")
-    config = manifest["config"]
+    config = complete_manifest(cache)["config"]
     max_depth = config.get("max_depth")
     return MultiviewSettings(dataroot=str(dataroot), version=str(config.get("version", "")),
                              dataset_sha256=str(config.get("dataset_sha256", "")), sweeps=int(config.get("sweeps", 0)),
@@ -177,10 +173,10 @@ def union_frustums(db, cache: str | Path, shard: str, selection: FrustumSelectio
     for path in (pairs_path, detections_path, frustums_path):
         if not path.is_file():
             raise DataFormatError(path, "missing: --multiview needs the shard's pairs, detections and frustums")
-    pairs = pq.read_table(pairs_path, columns=_PAIR_COLUMNS)
+    pairs = read_shard_table(pairs_path, columns=_PAIR_COLUMNS)
     pairs = pairs.filter(pc.is_in(pairs["class"], pa.array(list(selection.classes))))
-    detections = pq.read_table(detections_path, columns=_DETECTION_COLUMNS)
-    boxes_table = pq.read_table(frustums_path, columns=_BOX_COLUMNS)
+    detections = read_shard_table(detections_path, columns=_DETECTION_COLUMNS)
+    boxes_table = read_shard_table(frustums_path, columns=_BOX_COLUMNS)
     row_a = _lookup(detections, pairs["reference_detection_id"], detections_path, "reference")
     row_b = _lookup(detections, pairs["positive_detection_id"], detections_path, "positive")
     box_row = _lookup(boxes_table, pairs["reference_detection_id"], frustums_path, "reference")

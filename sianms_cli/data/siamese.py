@@ -38,9 +38,8 @@ from typing import Iterator
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
-import pyarrow.parquet as pq
 
-from sianms_cli.data.cache import decode_roi_features, roi_feature_shape
+from sianms_cli.data.cache import decode_roi_features, read_shard_table, roi_feature_shape
 from sianms_cli.errors import DataFormatError
 
 DETECTION_COLUMNS = ["detection_id", "scene_token", "sample_token", "camera", "instance_token", "overlap_pairs",
@@ -146,11 +145,11 @@ def iter_scenes(cache: str | Path, order: np.ndarray | None = None) -> Iterator[
     shape = cache_feature_shape(cache)
     for index in (range(len(paths)) if order is None else order):
         path = paths[index]
-        detections = pq.read_table(path, columns=DETECTION_COLUMNS)
+        detections = read_shard_table(path, columns=DETECTION_COLUMNS)
         pairs_path = Path(cache) / "pairs" / path.name
         if not pairs_path.is_file():
             raise DataFormatError(pairs_path, "missing: every detections shard has a pairs shard")
-        pairs = pq.read_table(pairs_path, columns=PAIR_COLUMNS)
+        pairs = read_shard_table(pairs_path, columns=PAIR_COLUMNS)
         scene_tokens = detections.column("scene_token").to_pylist()
         for token in dict.fromkeys(scene_tokens):
             if len(set(scene_tokens)) == 1:
@@ -173,7 +172,7 @@ def feature_statistics(cache: str | Path) -> tuple[np.ndarray, np.ndarray, int]:
     squares = np.zeros(shape[0])
     count = 0
     for path in shard_paths(cache):
-        column = pq.read_table(path, columns=["roi_feature"]).column("roi_feature")
+        column = read_shard_table(path, columns=["roi_feature"]).column("roi_feature")
         features = decode_roi_features(column, shape).astype(np.float64)
         total += features.sum(axis=(0, 2, 3))
         squares += np.square(features).sum(axis=(0, 2, 3))

@@ -34,8 +34,9 @@ from typing import Any, Iterator
 
 import pyarrow.parquet as pq
 
-from sianms_cli.data.cache import read_manifest
-from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
+from sianms_cli.data.cache import complete_manifest
+from sianms_cli.detection2d.classes import check_classes
+from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_seed
 from sianms_cli.geometry.bev import AXIS_MODES
 from sianms_cli.io import atomic_file, exclusive_lock, make_folder, read_json, release_lock, sha256_of, try_lock, write_json
 from sianms_cli.nuscenes.fingerprint import dataset_fingerprint
@@ -80,12 +81,17 @@ class EvalConfig:
             raise SianmsError(f"--axis-mode must be one of {', '.join(AXIS_MODES)}, got '{self.axis_mode}'")
         if not self.sianms_classes:
             raise SianmsError("--sianms-classes must name at least one class")
+        try:
+            check_classes(self.sianms_classes)
+        except SianmsError as error:
+            raise SianmsError(f"--sianms-classes: {error}") from None
         if self.dis_thr is not None and not self.dis_thr > 0:
             raise SianmsError(f"--dis-thr must be > 0, got {self.dis_thr}")
         if self.pictures < 0:
             raise SianmsError(f"--pictures must be >= 0, got {self.pictures}")
         if not self.max_distance > 0:
             raise SianmsError(f"--max-distance must be > 0, got {self.max_distance}")
+        check_seed(self.seed)
 
     @property
     def method_names(self) -> tuple[str, ...]:
@@ -109,15 +115,8 @@ class EvalResult:
 
 def cache_settings(cache: Path, db: NuScenesDB, split: str, scenes: list[str]) -> dict[str, Any]:
     """The cache's resolved prepare config, checked to be a complete cache of this dataset's split."""
-    manifest = read_manifest(cache)
-    if manifest is None:
-        raise DataFormatError(cache, "not a sianms cache (no manifest.json); run `sianms prepare` first")
-    config = manifest["config"]
+    config = complete_manifest(cache)["config"]
     where = cache / "manifest.json"
-    if not manifest.get("complete"):
-        raise DataFormatError(where, f"the cache is not complete (missing shards: "
-                                     f"{', '.join(manifest.get('missing_shards', [])) or '?'}); finish `sianms prepare`",
-                              field="complete")
     if config.get("dataset_sha256") != dataset_fingerprint(db.table_root):
         raise DataFormatError(where, "the cache was prepared from another dataset than --dataroot/--version",
                               field="config.dataset_sha256")
@@ -143,10 +142,12 @@ def _run_file(run: str) -> Path:
 def load_models(config: EvalConfig):
     """(F-PointNets predictor, siamese encoder, dis_thr): the trained runs, loaded once."""
     from sianms_cli.pipelines.inference import FPointNetPredictor
+    from sianms_cli.training.run import choose_device
     from sianms_cli.training.siamese import load_encoder
 
-    predictor = FPointNetPredictor(config.fpointnet, config.device)
-    encoder, dis_thr = load_encoder(config.siamese, config.device)
+    device = str(choose_device(config.device))
+    predictor = FPointNetPredictor(config.fpointnet, device)
+    encoder, dis_thr = load_encoder(config.siamese, device)
     return predictor, encoder, float(config.dis_thr if config.dis_thr is not None else dis_thr)
 
 

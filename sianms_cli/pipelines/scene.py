@@ -38,9 +38,8 @@ from typing import Any, Iterator
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
-import pyarrow.parquet as pq
 
-from sianms_cli.data.cache import decode_roi_features, roi_feature_shape
+from sianms_cli.data.cache import decode_roi_features, read_shard_table, roi_feature_shape
 from sianms_cli.geometry.transforms import sensor_to_global
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.rigs import sample_rigs
@@ -144,8 +143,8 @@ class SceneEvaluator:
         """The boxes table (:data:`BOXES_SCHEMA`) of one cache shard (a scene), its timings in the metadata."""
         self.seconds = Counter()
         with self._timed("read"):
-            detections = pq.read_table(detections_path, columns=DETECTION_COLUMNS)
-            frustums = _frustum_points(pq.read_table(frustums_path, columns=FRUSTUM_COLUMNS),
+            detections = read_shard_table(detections_path, columns=DETECTION_COLUMNS)
+            frustums = _frustum_points(read_shard_table(frustums_path, columns=FRUSTUM_COLUMNS),
                                        detections["detection_id"])
             records = scene_records(self.db, scene_token, self.settings.sweeps)
         samples = detections["sample_token"].to_numpy(zero_copy_only=False).astype(str)
@@ -285,8 +284,8 @@ class SceneEvaluator:
         """
         from sianms_cli.training.siamese import embed
 
-        table = pq.read_table(detections_path, columns=["detection_id", "roi_feature"],
-                              filters=[("sample_token", "==", sample_token)])
+        table = read_shard_table(detections_path, columns=["detection_id", "roi_feature"],
+                                 filters=[("sample_token", "==", sample_token)])
         where = pc.index_in(pa.array(detection_ids.tolist(), pa.string()), value_set=table["detection_id"].combine_chunks())
         features = table["roi_feature"].take(where)
         return embed(self.encoder, decode_roi_features(features, roi_feature_shape(detections_path)))

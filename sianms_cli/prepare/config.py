@@ -9,10 +9,12 @@ from typing import Any
 from sianms_cli.detection2d.backbones import BACKBONES
 from sianms_cli.detection2d.classes import check_classes
 from sianms_cli.detection2d.detectors import parse_detector
-from sianms_cli.errors import SianmsError
+from sianms_cli.errors import SianmsError, check_seed
 from sianms_cli.io import sha256_of
 from sianms_cli.nuscenes.classes import PAPER_CLASSES
 from sianms_cli.nuscenes.tables import check_version_name
+
+MAX_ROI_SIZE = 64  # pixels a side: ROI Align pools 7 or 14 in practice; beyond this a feature row passes 4 MB
 
 
 @dataclass(frozen=True)
@@ -41,8 +43,9 @@ class PrepareConfig:
         parse_detector(self.detector)
         if self.backbone not in BACKBONES:
             raise SianmsError(f"unknown backbone '{self.backbone}'; expected one of {', '.join(BACKBONES)}")
-        if self.roi_size < 1:
-            raise SianmsError(f"--roi-size must be at least 1, got {self.roi_size}")
+        if not 1 <= self.roi_size <= MAX_ROI_SIZE:
+            raise SianmsError(f"--roi-size must be between 1 and {MAX_ROI_SIZE}, got {self.roi_size}")
+        check_seed(self.seed)
         if self.sweeps < 0:
             raise SianmsError(f"--sweeps must be >= 0, got {self.sweeps}")
         if not 0 < self.iou_threshold <= 1:

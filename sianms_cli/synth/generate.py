@@ -49,7 +49,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from sianms_cli import __version__, io
-from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
+from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_seed
 from sianms_cli.geometry.quaternion import matrix_to_quat, yaw_to_quat
 from sianms_cli.geometry.transforms import make_transform
 from sianms_cli.nuscenes.splits import splits_for_version
@@ -155,8 +155,7 @@ class SynthConfig:
             raise SianmsError(f"--sensors must be one of {', '.join(SENSOR_MODES)}, got '{self.sensors}'")
         if not 0.05 <= self.image_scale <= 1.0:
             raise SianmsError(f"--image-scale must be in [0.05, 1], got {self.image_scale}")
-        if self.seed < 0:
-            raise SianmsError(f"--seed must be at least 0, got {self.seed}")
+        check_seed(self.seed)
         self.scene_names()  # --scenes: at least 1, no more than the version has, required beyond mini
 
     @property

@@ -37,9 +37,10 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
+from sianms_cli.data.cache import complete_manifest
 from sianms_cli.data.frustum_dataset import Augmentation, FrustumSelection, class_statistics, iterate_batches
 from sianms_cli.data.multiview import build_union_shards, multiview_settings
-from sianms_cli.errors import SianmsError
+from sianms_cli.errors import SianmsError, check_seed
 from sianms_cli.geometry.iou3d import box_iou3d
 from sianms_cli.models.fpointnet import NUM_HEADING_BINS, FPointNetV1
 from sianms_cli.models.fpointnet_losses import decode_boxes, fpointnet_loss
@@ -68,6 +69,9 @@ CURVES_EVERY = 10  # epochs between redraws of curves.png (about 40 panels: seco
 MULTIVIEW_FOLDER = "multiview"  # RUN/multiview/<shard>.parquet: the union frustums of each cache shard
 LOSS_TERMS = ("total", "mask", "center", "stage1_center", "heading_class", "heading_residual", "size_class",
               "size_residual", "corner")
+
+
+LOSS_WEIGHTS = ("box_weight", "corner_weight")  # config fields that weight the loss terms (models.md §1)
 
 
 @dataclass(frozen=True)
@@ -108,8 +112,18 @@ class FPointNetConfig:
                 raise SianmsError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}")
         if self.batch_size < 2:
             raise SianmsError("--batch-size must be at least 2 (batch norm)")
-        if not (self.lr > 0 and 0 < self.decay_rate <= 1 and self.min_box_height >= 0):
-            raise SianmsError("--lr must be > 0, --decay-rate in (0, 1], --min-box-height >= 0")
+        checks = [
+            (self.lr > 0 and math.isfinite(self.lr), f"--lr must be positive, got {self.lr}"),
+            (0 < self.decay_rate <= 1, f"--decay-rate must be in (0, 1], got {self.decay_rate}"),
+            (self.min_box_height >= 0, f"--min-box-height must be >= 0, got {self.min_box_height}"),
+        ]
+        checks += [(math.isfinite(getattr(self, name)) and getattr(self, name) >= 0,
+                    f"--{name.replace('_', '-')} must be a finite number >= 0, got {getattr(self, name)}")
+                   for name in LOSS_WEIGHTS]
+        for ok, message in checks:
+            if not ok:
+                raise SianmsError(message)
+        check_seed(self.seed)
         if self.multiview and not self.dataroot:
             raise SianmsError("--multiview needs --dataroot: the nuScenes dataroot the cache was prepared from "
                               "(union frustums are cut from its LiDAR sweeps)")
@@ -276,6 +290,9 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
         progress: told the frustums of each epoch as they are trained.
         on_epoch: called with each finished epoch's row of metrics.csv.
     """
+    for cache in (config.cache, config.val_cache):  # before the run folder exists: bad input leaves none
+        if cache is not None:
+            complete_manifest(cache)
     counts, mean_sizes = size_clusters(config)
     device = choose_device(config.device)
     union_settings = multiview_settings(config.cache, config.dataroot, config.max_distance) if config.multiview else None

@@ -11,7 +11,10 @@ Layout of a run folder ``RUN/``::
     .sianms.lock     held while a run writes the folder
 
 Every file is written atomically (hidden temporary name, renamed when complete), so a
-killed run leaves the last finished epoch's files, never a half-written one.
+killed run leaves the last finished epoch's files, never a half-written one. A run that
+fails (an error, not an interrupt) before its first checkpoint removes what it created in
+the folder, and the folder when it created it: bad input leaves nothing that looks like a
+run and blocks the next one.
 
 How a training uses it (the whole API)::
 
@@ -49,6 +52,7 @@ import math
 import os
 import pickle
 import random
+import shutil
 import struct
 import warnings
 import zipfile
@@ -60,7 +64,7 @@ import numpy as np
 import torch
 
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
-from sianms_cli.io import exclusive_lock, make_folder, write_bytes, write_json
+from sianms_cli.io import exclusive_lock, make_folder, read_json, write_bytes, write_json
 
 CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.json"
@@ -317,6 +321,9 @@ class RunFolder:
         self.path, self.kind, self.config, self.resumed, self.write = path, kind, config, resumed, write
         self.panels: Sequence[tuple[str, Sequence[str]]] | None = None  # curves.png layout (plot_curves)
         self._lock = None
+        self._made_folder = False  # this run created the folder
+        self._found: set[str] = set()  # the folder's entries before this run wrote any
+        self._saved = False  # this run wrote a checkpoint
 
     @property
     def checkpoint_path(self) -> Path:
@@ -330,7 +337,7 @@ class RunFolder:
         - A folder holding a run (config.json or checkpoint.pt) is refused unless ``resume``
           (continue it: its config must equal ``config`` except the fields in ``may_differ``)
           or ``overwrite`` (its run files are deleted; nothing else is touched).
-        - ``resume`` with no checkpoint yet starts afresh.
+        - ``resume`` with no checkpoint yet starts afresh, when config.json gives the same config.
         - A non-empty folder that holds no run is refused: it is someone else's.
         - ``write`` false (the non-zero ranks of a distributed run): check and read only.
         """
@@ -345,13 +352,17 @@ class RunFolder:
             raise OutputExistsError(f"{path} is a non-empty folder that holds no sianms run; choose another --out")
         resumed = None
         if has_run and resume:
+            wanted = {"kind": kind, **config}  # as config.json holds it
             if (path / CHECKPOINT).exists():
                 resumed = load_checkpoint(path / CHECKPOINT, kind)
-                differ = sorted(key for key in set(config) | set(resumed.config)
-                                if key not in set(may_differ) and config.get(key) != resumed.config.get(key))
-                if differ:
-                    raise SianmsError(f"cannot resume {path}: the config differs in {', '.join(differ)} "
-                                      "(pass the same options, or --overwrite to start afresh)")
+                stored = {"kind": kind, **resumed.config}
+            else:  # a run stopped in its first epoch: its config.json says what it was
+                stored = _stored_config(path / CONFIG)
+            differ = sorted(key for key in set(wanted) | set(stored)
+                            if key not in set(may_differ) and wanted.get(key) != stored.get(key))
+            if differ:
+                raise SianmsError(f"cannot resume {path}: the config differs in {', '.join(differ)} "
+                                  "(pass the same options, or --overwrite to start afresh)")
         elif has_run and not overwrite:
             raise OutputExistsError(f"{path} holds a run; pass --resume to continue it or --overwrite to replace it")
         folder = cls(path, kind, config, resumed, write)
@@ -362,16 +373,40 @@ class RunFolder:
 
     def __enter__(self) -> RunFolder:
         if self.write:
+            self._made_folder = not self.path.is_dir()
             make_folder(self.path)
+            self._found = {entry.name for entry in self.path.iterdir()}
             self._lock = exclusive_lock(self.path / FOLDER_LOCK_NAME, what=str(self.path))
             self._lock.__enter__()
             write_json(self.path / CONFIG, {"kind": self.kind, **self.config})
         return self
 
-    def __exit__(self, *exc) -> None:
-        if self._lock is not None:
-            self._lock.__exit__(*exc)
+    def __exit__(self, exc_type, *exc) -> None:
+        if self._lock is None:
+            return
+        # An interrupt keeps the folder: --resume restarts it and reuses what it computed.
+        failed_early = (exc_type is not None and issubclass(exc_type, Exception) and self.resumed is None
+                        and not self._saved)
+        try:
+            if failed_early:
+                self._remove_created_entries()
+        finally:
+            self._lock.__exit__(exc_type, *exc)
             self._lock = None
+        if failed_early and self._made_folder:
+            try:
+                self.path.rmdir()
+            except OSError:  # something else appeared in it: not ours to delete
+                pass
+
+    def _remove_created_entries(self) -> None:
+        """Delete the folder's entries that were not there when this run started (its lock file included)."""
+        for entry in self.path.iterdir():
+            if entry.name not in self._found:
+                if entry.is_dir() and not entry.is_symlink():
+                    shutil.rmtree(entry)
+                else:
+                    entry.unlink()
 
     def save(self, checkpoint: Checkpoint, *, curves: bool = True) -> None:
         """Write the epoch's checkpoint, then metrics.csv and (``curves``) curves.png from its history.
@@ -382,10 +417,19 @@ class RunFolder:
         if not self.write:
             return
         save_checkpoint(self.checkpoint_path, checkpoint)
+        self._saved = True
         write_bytes(self.path / METRICS, metrics_csv(checkpoint.history).encode())
         if curves and checkpoint.history:
             plot_curves(checkpoint.history, self.path / CURVES, title=f"{self.kind}: {self.path.name}",
                         panels=self.panels)
+
+
+def _stored_config(path: Path) -> dict[str, Any]:
+    """The config.json of a run that has no checkpoint yet (kind included)."""
+    stored = read_json(path)
+    if not isinstance(stored, dict):
+        raise DataFormatError(path, "not a sianms run config (expected a JSON object)")
+    return stored
 
 
 def plain(value: Any) -> Any:

@@ -56,9 +56,10 @@ import torch
 from scipy.optimize import linear_sum_assignment
 from scipy.stats import rankdata
 
+from sianms_cli.data.cache import complete_manifest
 from sianms_cli.data.siamese import PairingBatch, Scene, cache_feature_shape, epoch_batches, feature_statistics, \
     hardest_candidates, iter_scenes
-from sianms_cli.errors import DataFormatError, SianmsError
+from sianms_cli.errors import DataFormatError, SianmsError, check_seed
 from sianms_cli.io import make_folder, write_json, write_text
 from sianms_cli.models.losses import double_margin_loss, pair_distances, positive_terms
 from sianms_cli.models.siamese import SiameseEncoder, parameter_count
@@ -115,11 +116,11 @@ class SiameseConfig:
             (self.lr_step >= 1, f"--lr-step must be at least 1, got {self.lr_step}"),
             (self.epochs >= 1, f"--epochs must be at least 1, got {self.epochs}"),
             (self.batch_size >= 1, f"--batch-size must be at least 1, got {self.batch_size}"),
-            (self.seed >= 0, f"--seed must be at least 0, got {self.seed}"),
         ]
         for ok, message in checks:
             if not ok:
                 raise SianmsError(message)
+        check_seed(self.seed)
 
     def resolved(self) -> dict[str, Any]:
         """The config as plain types, paths absolute (config.json and the checkpoint)."""
@@ -375,6 +376,9 @@ def run(config: SiameseConfig, out: str | Path, *, overwrite: bool = False, resu
         progress: told the epochs to run, then each one done.
         on_epoch: called with each finished epoch's metrics row (the CLI prints it).
     """
+    for cache in (config.cache, config.val_cache):  # before the run folder exists: bad input leaves none
+        if cache is not None:
+            complete_manifest(cache)
     feature_shape = cache_feature_shape(config.cache)
     if config.val_cache is not None and cache_feature_shape(config.val_cache) != feature_shape:
         raise SianmsError(f"--val-cache holds ROI features of shape {cache_feature_shape(config.val_cache)}, "

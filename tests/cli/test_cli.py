@@ -22,6 +22,28 @@ def test_python_dash_m_runs_the_cli():
     assert "synth" in result.stdout and "info" in result.stdout
 
 
+def sianms(*arguments):
+    return subprocess.run([sys.executable, "-m", "sianms_cli", *arguments], capture_output=True, text=True)
+
+
+def test_a_flag_the_parser_refuses_is_one_error_line():
+    bad_type = sianms("synth", "--seed", "abc")
+    assert bad_type.returncode == 2 and bad_type.stdout == ""
+    assert bad_type.stderr.splitlines() == [
+        "error: sianms synth: Invalid value for '--seed': Input should be a valid integer, unable to parse string "
+        "as an integer (see 'sianms synth -h')"]
+    out_of_range = sianms("train", "siamese", "--cache", "c", "--out", "r", "--threads", "0")
+    assert out_of_range.returncode == 2 and len(out_of_range.stderr.splitlines()) == 1
+    assert out_of_range.stderr.startswith("error: sianms train siamese: Invalid value for '--threads'")
+    unknown = sianms("info", "--bogus")
+    assert unknown.returncode == 2 and unknown.stderr.startswith("error: sianms info: No such option: --bogus")
+
+
+def test_a_bare_command_group_prints_its_help():
+    bare = sianms("train")
+    assert bare.returncode == 2 and "siamese" in bare.stdout + bare.stderr and "error:" not in bare.stderr
+
+
 def test_info_as_json_and_as_text(synthetic_dataroot, tmp_path):
     dataroot = str(synthetic_dataroot())
     result = runner.invoke(app, ["info", "--dataroot", dataroot, "--json", "--quiet"])

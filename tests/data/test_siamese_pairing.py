@@ -157,12 +157,12 @@ def test_epoch_batches_are_seeded(two_scene_cache):
 
 def test_scenes_are_read_one_at_a_time_with_only_the_needed_columns(two_scene_cache, monkeypatch):
     reads = []
-    real = pq.read_table
+    real = data.read_shard_table
     def read_table(path, columns=None):
         reads.append((Path(path).parent.name, columns))
         return real(path, columns=columns)
 
-    monkeypatch.setattr(data.pq, "read_table", read_table)
+    monkeypatch.setattr(data, "read_shard_table", read_table)
     iterator = data.iter_scenes(two_scene_cache)
     next(iterator)
     assert [folder for folder, _ in reads] == ["detections", "pairs"]  # the second scene is not read yet

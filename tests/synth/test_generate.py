@@ -255,7 +255,7 @@ def test_trainval_names_come_from_the_devkit_train_and_val_lists():
     (dict(scenes=1, sensors="radar"), "--sensors must be one of"),
     (dict(scenes=1, scene_seconds=25), "--scene-seconds"),
     (dict(scenes=1, scene_seconds=0.2), "--scene-seconds .* at least one keyframe"),
-    (dict(scenes=1, seed=-1), "--seed must be at least 0"),
+    (dict(scenes=1, seed=-1), r"--seed must be between 0 and 2\*\*63 - 1, got -1"),
     (dict(scenes=1, version="../escape"), "--version must be one folder name"),
     (dict(scenes=1, version="v1.0-mini/.."), "--version must be one folder name"),
 ])

@@ -43,7 +43,9 @@ def test_a_cache_without_frustums_of_the_classes_is_one_error_line(tiny_caches, 
 
 def test_a_missing_cache_is_one_error_line(tmp_path):
     done = invoke("--cache", str(tmp_path / "nope"), "--out", str(tmp_path / "run"), *SMALL)
-    assert done.exit_code == 2 and done.stderr.startswith("error: ") and "frustums" in done.stderr
+    assert done.exit_code == 2 and done.stderr.strip().splitlines() == [
+        f"error: {tmp_path / 'nope' / 'manifest.json'}: not found: not a `sianms prepare` cache "
+        "(run `sianms prepare` first)"]
 
 
 def test_multiview_flags_reach_the_training(tiny_caches, tiny_dataroot, tmp_path):

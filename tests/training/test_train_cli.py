@@ -42,8 +42,8 @@ def test_user_errors_are_one_line(tmp_path):
     done = invoke("--cache", str(tmp_path / "missing"), "--out", str(tmp_path / "run"), "--quiet")
     assert done.exit_code == 2
     assert done.stderr.strip().splitlines() == [
-        f"error: {tmp_path / 'missing' / 'detections'}: no finished detections shard files (*.parquet); "
-        "run `sianms prepare` first"]
+        f"error: {tmp_path / 'missing' / 'manifest.json'}: not found: not a `sianms prepare` cache "
+        "(run `sianms prepare` first)"]
     bad = invoke("--cache", str(tmp_path), "--out", str(tmp_path / "run"), "--conv-channels", "8,x")
     assert bad.exit_code == 2 and "--conv-channels must be comma-separated integers" in bad.stderr
 

@@ -1,0 +1,69 @@
+"""Every command's config refuses a flag value that would fail deep in the run, naming the flag."""
+
+import math
+
+import pytest
+
+from sianms_cli.demo import DemoConfig
+from sianms_cli.errors import SEED_LIMIT, SianmsError
+from sianms_cli.pipelines.job import EvalConfig
+from sianms_cli.prepare.config import MAX_ROI_SIZE, PrepareConfig
+from sianms_cli.synth.generate import SynthConfig
+from sianms_cli.training.fpointnet import FPointNetConfig
+from sianms_cli.training.siamese import SiameseConfig
+
+CONFIGS = {
+    "synth": lambda **flags: SynthConfig(scenes=1, **flags),
+    "demo": lambda **flags: DemoConfig(**flags),
+    "prepare": lambda **flags: PrepareConfig(dataroot="d", version="v1.0-mini", split="mini_train", **flags),
+    "siamese": lambda **flags: SiameseConfig(cache="c", **flags),
+    "fpointnet": lambda **flags: FPointNetConfig(cache="c", **flags),
+    "eval": lambda **flags: EvalConfig(dataroot="d", version="v1.0-mini", split="mini_val", cache="c",
+                                       siamese="s", fpointnet="f", **flags),
+}
+
+
+@pytest.mark.parametrize("command", sorted(CONFIGS))
+@pytest.mark.parametrize("seed", [-1, SEED_LIMIT])
+def test_every_command_takes_the_same_seeds(command, seed):
+    with pytest.raises(SianmsError, match=rf"^--seed must be between 0 and 2\*\*63 - 1, got {seed}$"):
+        CONFIGS[command](seed=seed)
+    assert CONFIGS[command](seed=SEED_LIMIT - 1).seed == SEED_LIMIT - 1
+
+
+@pytest.mark.parametrize("flags, message", [
+    (dict(lr=math.inf), "--lr must be positive, got inf"),
+    (dict(lr=math.nan), "--lr must be positive, got nan"),
+    (dict(decay_rate=0.0), r"--decay-rate must be in \(0, 1\], got 0.0"),
+    (dict(min_box_height=-1.0), "--min-box-height must be >= 0, got -1.0"),
+    (dict(box_weight=-1.0), "--box-weight must be a finite number >= 0, got -1.0"),
+    (dict(corner_weight=math.nan), "--corner-weight must be a finite number >= 0, got nan"),
+])
+def test_fpointnet_names_the_flag_it_refuses(flags, message):
+    with pytest.raises(SianmsError, match=f"^{message}$"):
+        CONFIGS["fpointnet"](**flags)
+
+
+def test_prepare_bounds_the_roi_size():
+    with pytest.raises(SianmsError, match=f"--roi-size must be between 1 and {MAX_ROI_SIZE}, got 100000"):
+        CONFIGS["prepare"](roi_size=100_000)
+
+
+def test_eval_refuses_a_class_siamese_matching_cannot_have():
+    with pytest.raises(SianmsError, match="--sianms-classes: unknown detection class 'tank'"):
+        CONFIGS["eval"](sianms_classes=("tank",))
+
+
+def test_eval_checks_the_device_before_loading_anything():
+    from sianms_cli.pipelines.job import load_models
+
+    with pytest.raises(SianmsError, match="--device must be auto, cpu, cuda or cuda:N, got 'tpu'"):
+        load_models(CONFIGS["eval"](device="tpu"))
+
+
+def test_demo_checks_its_worker_count_before_writing(tmp_path):
+    from sianms_cli.demo import run
+
+    with pytest.raises(SianmsError, match="--workers must be at least 1, got 0"):
+        run(DemoConfig(quick=True), tmp_path / "demo", workers=0)
+    assert list(tmp_path.iterdir()) == []

@@ -1,0 +1,113 @@
+"""A damaged cache: truncated shard files fail with one DataFormatError naming them, a shard whose
+file changed size is not finished (a rerun rebuilds it), and readers refuse an incomplete cache."""
+
+import json
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+from sianms_cli.data.cache import (
+    ShardWriter, complete_manifest, read_dataset, read_shard_table, roi_feature_shape, shard_done, write_manifest,
+)
+from sianms_cli.data.frustum_dataset import FrustumSelection, read_shard
+from sianms_cli.data.index import build_pair_index
+from sianms_cli.data.schemas import cache_schemas
+from sianms_cli.data.siamese import iter_scenes
+from sianms_cli.errors import DataFormatError
+from sianms_cli.pipelines.scene import SceneEvaluator
+
+UNREADABLE = "not a readable Parquet file; rerun `sianms prepare` on the cache to rebuild it"
+
+
+def write_shard(root, shard="s"):
+    """A finished shard of one detection (its frustums and pairs files empty); its completion record."""
+    schemas = cache_schemas((1, 2, 2), "tiny")
+    row = {name: None for name in schemas["detections"].names}
+    row.update(detection_id="d", scene_token="scene", sample_token="sample", camera="CAM_FRONT", x1=1.0, y1=1.0,
+               x2=5.0, y2=5.0, score=0.5, overlap_pairs=[], detection_index=0,
+               roi_feature=np.zeros((1, 2, 2), dtype="<f2").tobytes())
+    with ShardWriter(root, shard, schemas) as writer:
+        writer.write("detections", pa.Table.from_pylist([row], schema=schemas["detections"]))
+        return writer.commit({"samples": 1})
+
+
+def truncate(path, size=100):
+    with open(path, "r+b") as handle:
+        handle.truncate(size)
+
+
+def test_the_completion_record_holds_each_file_size(tmp_path):
+    record = write_shard(tmp_path)
+    for name in ("detections", "frustums", "pairs"):
+        info = record["files"][f"{name}/s.parquet"]
+        assert info["bytes"] == (tmp_path / name / "s.parquet").stat().st_size
+    manifest = write_manifest(tmp_path, {"seed": 0}, ["s"], tmp_path)
+    assert manifest["files"]["detections/s.parquet"]["bytes"] == record["files"]["detections/s.parquet"]["bytes"]
+
+
+@pytest.mark.parametrize("name", ["detections", "frustums", "pairs"])
+def test_a_shard_whose_file_changed_size_is_not_finished(tmp_path, name):
+    write_shard(tmp_path)
+    assert shard_done(tmp_path, "s")
+    truncate(tmp_path / name / "s.parquet")
+    assert not shard_done(tmp_path, "s")
+    manifest = write_manifest(tmp_path, {"seed": 0}, ["s"], tmp_path)
+    assert manifest["complete"] is False and manifest["missing_shards"] == ["s"]
+
+
+def test_a_record_without_sizes_is_checked_for_a_parquet_footer(tmp_path):
+    """Caches written before sizes were recorded stay readable; a truncated file is still caught."""
+    record = write_shard(tmp_path)
+    for info in record["files"].values():
+        del info["bytes"]
+    (tmp_path / "_shards" / "s.json").write_text(json.dumps(record))
+    assert shard_done(tmp_path, "s")
+    truncate(tmp_path / "pairs" / "s.parquet")
+    assert not shard_done(tmp_path, "s")
+
+
+def test_an_unreadable_completion_record_is_not_finished(tmp_path):
+    write_shard(tmp_path)
+    (tmp_path / "_shards" / "s.json").write_text("{\"files\": ")
+    assert not shard_done(tmp_path, "s")
+
+
+def test_every_reader_names_the_truncated_shard(tmp_path):
+    write_shard(tmp_path)
+    detections, frustums, pairs = (tmp_path / name / "s.parquet" for name in ("detections", "frustums", "pairs"))
+    truncate(pairs)
+    with pytest.raises(DataFormatError) as error:
+        list(iter_scenes(tmp_path))
+    assert str(error.value) == f"{pairs}: {UNREADABLE}"
+    truncate(frustums)
+    with pytest.raises(DataFormatError) as error:
+        read_shard(frustums, FrustumSelection())
+    assert str(error.value) == f"{frustums}: {UNREADABLE}"
+    truncate(detections)
+    for read in (lambda: read_shard_table(detections), lambda: roi_feature_shape(detections),
+                 lambda: read_dataset(tmp_path, "detections"), lambda: build_pair_index(tmp_path),
+                 lambda: SceneEvaluator(None, None, None, None).scene(detections, frustums, "scene")):
+        with pytest.raises(DataFormatError) as error:
+            read()
+        assert str(error.value) == f"{detections}: {UNREADABLE}"
+
+
+def test_a_missing_shard_file_is_left_to_the_os_error_line(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        read_shard_table(tmp_path / "detections" / "s.parquet")
+
+
+def test_readers_refuse_a_folder_without_manifest_or_an_incomplete_cache(tmp_path):
+    with pytest.raises(DataFormatError) as error:
+        complete_manifest(tmp_path)
+    assert str(error.value) == (f"{tmp_path / 'manifest.json'}: not found: not a `sianms prepare` cache "
+                                "(run `sianms prepare` first)")
+    write_shard(tmp_path)
+    write_manifest(tmp_path, {"seed": 0}, ["s", "t", "u"], tmp_path)
+    with pytest.raises(DataFormatError) as error:
+        complete_manifest(tmp_path)
+    assert str(error.value) == (f"{tmp_path / 'manifest.json'}: field 'complete': the cache is not complete "
+                                "(2 of 3 shards missing); rerun `sianms prepare` with the same flags to finish it")
+    written = write_manifest(tmp_path, {"seed": 0}, ["s"], tmp_path)
+    assert complete_manifest(tmp_path) == written
