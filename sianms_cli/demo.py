@@ -36,7 +36,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, NamedTuple
 
-from sianms_cli.errors import OutputExistsError, SianmsError, check_seed
+from sianms_cli.errors import OutputExistsError, SianmsError, check_seed, check_workers
 from sianms_cli.io import make_folder, read_json, write_json
 from sianms_cli.progress import SILENT, Progress
 
@@ -286,8 +286,7 @@ def run(config: DemoConfig, out: str | Path, *, overwrite: bool = False, progres
         on_stage: told when a stage starts, ends (with its wall time) or is skipped.
         workers: processes for `synth` (its output does not depend on it).
     """
-    if workers < 1:
-        raise SianmsError(f"--workers must be at least 1, got {workers}")
+    check_workers(workers)
     log = on_stage or (lambda stage, event, seconds: None)
     out = Path(out)
     record = claim_output(out, config.resolved(), overwrite)

@@ -67,3 +67,9 @@ def check_seed(seed: int) -> None:
     """Refuse a ``--seed`` outside [0, 2**63)."""
     if not 0 <= seed < SEED_LIMIT:
         raise SianmsError(f"--seed must be between 0 and 2**63 - 1, got {seed}")
+
+
+def check_workers(workers: int) -> None:
+    """Refuse a ``--workers`` below 1, before anything is written."""
+    if workers < 1:
+        raise SianmsError(f"--workers must be at least 1, got {workers}")

@@ -36,7 +36,7 @@ import pyarrow.parquet as pq
 
 from sianms_cli.data.cache import complete_manifest
 from sianms_cli.detection2d.classes import check_classes
-from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_seed
+from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_seed, check_workers
 from sianms_cli.geometry.bev import AXIS_MODES
 from sianms_cli.io import atomic_file, exclusive_lock, make_folder, read_json, release_lock, sha256_of, try_lock, write_json
 from sianms_cli.nuscenes.fingerprint import dataset_fingerprint
@@ -291,8 +291,7 @@ def run(config: EvalConfig, out: str | Path, *, overwrite: bool = False, progres
     """
     started = time.perf_counter()
     k, n = parse_shard(shard)
-    if workers < 1:
-        raise SianmsError(f"--workers must be at least 1, got {workers}")
+    check_workers(workers)
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise OutputExistsError(f"{out} exists and is not a folder; choose another --out")

@@ -30,7 +30,7 @@ from sianms_cli.data.cache import (
     write_manifest,
 )
 from sianms_cli.data.schemas import DATASETS
-from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
+from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_workers
 from sianms_cli.io import PARTIAL_SUFFIX, FolderBusyError, exclusive_lock, make_folder, release_lock, try_lock
 from sianms_cli.nuscenes.fingerprint import dataset_fingerprint
 from sianms_cli.nuscenes.tables import CAMERA_CHANNELS
@@ -269,8 +269,7 @@ def run(
         shard: "K/N": this run does the scenes whose position in the split is K mod N.
     """
     k, n = parse_shard(shard)
-    if workers < 1:
-        raise SianmsError(f"--workers must be at least 1, got {workers}")
+    check_workers(workers)
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise OutputExistsError(f"{out} exists and is not a folder; choose another --out")

@@ -49,7 +49,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from sianms_cli import __version__, io
-from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_seed
+from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_seed, check_workers
 from sianms_cli.geometry.quaternion import matrix_to_quat, yaw_to_quat
 from sianms_cli.geometry.transforms import make_transform
 from sianms_cli.nuscenes.splits import splits_for_version
@@ -228,8 +228,7 @@ def run(
     half-written dataroot is ever left. ``workers`` processes sense scenes in parallel;
     records are still written in scene order, so the output does not depend on ``workers``.
     """
-    if workers < 1:
-        raise SianmsError(f"--workers must be at least 1, got {workers}")
+    check_workers(workers)
     out = Path(out).resolve()  # through a symbolic link: replace the folder it names, not the link
     _check_output(out, overwrite=overwrite)
     names = config.scene_names()
