@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 
 METHODS = ("vanilla", "axis-nms", "axis-nms (best)", "rotated-nms", "rotated-nms (best)", "circle-nms",
-           "sianms", "hybrid", "oracle")
+           "sianms", "hybrid", "gated-sianms", "oracle")
+MERGING = ("sianms", "hybrid", "gated-sianms", "oracle")  # compared run by run with vanilla and Axis-NMS
 UNITS = ("AP", "ATE", "ASE", "AOE")
 DIGITS = {"AP": 1, "ATE": 3, "ASE": 1, "AOE": 3}
 PAPER = {("all", "vanilla"): (45.5, 0.331, 18.4, 0.371), ("all", "axis-nms"): (49.1, 0.330, 18.4, 0.367),
@@ -33,12 +34,17 @@ def cell(report: dict, region: str, method: str) -> dict:
     return report["regions"][region][method]["car"]
 
 
+def evaluated(reports: list[dict], methods: tuple[str, ...]) -> list[str]:
+    """The names of ``methods`` the runs evaluated (an older run may lack a newer method)."""
+    return [m for m in methods if m.removesuffix(" (best)") in reports[0]["methods"]]
+
+
 def paired_differences(reports: list[dict]) -> list[str]:
-    """Overlap AP and ATE of siaNMS, hybrid and the oracle minus vanilla and Axis-NMS, run by
-    run: the runs share their data between methods, so the paired difference is what ranks
-    two methods, and its spread is far smaller than the spread of either."""
+    """Overlap AP and ATE of the merging methods minus vanilla and Axis-NMS, run by run: the
+    runs share their data between methods, so the paired difference is what ranks two
+    methods, and its spread is far smaller than the spread of either."""
     lines = ["| overlap, run by run | AP difference (points) | ATE difference (m) |", "|---|---|---|"]
-    for method in ("sianms", "hybrid", "oracle"):
+    for method in evaluated(reports, MERGING):
         for reference in ("vanilla", "axis-nms", "axis-nms (best)"):
             texts = []
             for unit in ("AP", "ATE"):
@@ -54,7 +60,7 @@ def table(reports: list[dict]) -> list[str]:
     lines = ["| region | method | " + " | ".join(UNITS) + " | paper AP / ATE / ASE / AOE | GT cars per run |",
              "|---|---|" + "---|" * len(UNITS) + "---|---|"]
     for region in ("all", "overlap"):
-        for method in METHODS:
+        for method in evaluated(reports, METHODS):
             cells = [cell(r, region, method) for r in reports]
             values = []
             for unit in UNITS:
@@ -66,12 +72,14 @@ def table(reports: list[dict]) -> list[str]:
             lines.append(f"| {region.capitalize()} | {method} | " + " | ".join(values) + f" | {paper_text} | {gt} |")
     lines.append("")
     lines += paired_differences(reports)
-    reid = [r["reidentification"]["sianms"] for r in reports]
-    p = np.array([x["precision"] for x in reid])
-    rec = np.array([x["recall"] for x in reid])
     lines.append("")
-    lines.append(f"siaNMS matches: precision {p.mean():.2f} ± {p.std(ddof=1):.2f}, recall {rec.mean():.2f} ± "
-                 f"{rec.std(ddof=1):.2f} (true pairs per run: {', '.join(str(x['pairs_true']) for x in reid)})")
+    for matcher, label in (("sianms", "siaNMS"), ("gated-sianms", "Gated siaNMS")):
+        if matcher in reports[0]["reidentification"]:
+            reid = [r["reidentification"][matcher] for r in reports]
+            p = np.array([x["precision"] for x in reid])
+            rec = np.array([x["recall"] for x in reid])
+            lines.append(f"{label} matches: precision {p.mean():.2f} ± {p.std(ddof=1):.2f}, recall {rec.mean():.2f} ± "
+                         f"{rec.std(ddof=1):.2f} (true pairs per run: {', '.join(str(x['pairs_true']) for x in reid)})")
     return lines
 
 

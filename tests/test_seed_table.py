@@ -48,3 +48,18 @@ def test_one_run_or_different_methods_are_refused(tmp_path):
     refused = run(tmp_path, [report(0.0, 100, "axis-nms"), other])
     assert refused.returncode == 2 and "different methods" in refused.stderr
 
+
+
+def test_a_newer_method_appears_only_when_every_run_evaluated_it(tmp_path):
+    runs = [report(0.0, 100, "axis-nms"), report(2.0, 120, "axis-nms")]
+    for r in runs:  # gated-sianms beside the oracle: index 8 in All, AP 80 + offset
+        r["methods"] = METHODS + ["gated-sianms"]
+        for region, shift in (("all", 0.0), ("overlap", 5.0)):
+            r["regions"][region]["gated-sianms"] = {"car": {"AP": 80.0 + (r["regions"]["all"]["vanilla"]["car"]["AP"])
+                                                            - shift, "ATE": 0.8, "ASE": 20.0, "AOE": 0.5, "gt": 100}}
+        r["reidentification"]["gated-sianms"] = {"precision": 0.95, "recall": 0.7, "pairs_true": 10}
+    lines = run(tmp_path, runs).stdout.splitlines()
+    assert "| gated-sianms − vanilla | +80.0 ± 0.0 (+80.0, +80.0) | +0.800 ± 0.000 (+0.800, +0.800) |" in lines
+    assert lines[-1] == "Gated siaNMS matches: precision 0.95 ± 0.00, recall 0.70 ± 0.00 (true pairs per run: 10, 10)"
+    older = run(tmp_path, [report(0.0, 100, "axis-nms"), report(2.0, 120, "axis-nms")]).stdout
+    assert "gated-sianms" not in older and "Gated" not in older

@@ -1,4 +1,4 @@
-"""`sianms eval`: vanilla, NMS variants, siaNMS, hybrid and the oracle, end to end to Table I."""
+"""`sianms eval`: vanilla, NMS variants, siaNMS, hybrid, gated siaNMS and the oracle, end to end to Table I."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ def eval_cli(
     fpointnet: Path = typer.Option(..., help="`sianms train fpointnet` run folder (or its checkpoint.pt)."),
     out: Path = typer.Option(..., help="Evaluation folder to write (resumed if it holds the same config)."),
     methods: str = typer.Option("all", help="'all' or a comma list of vanilla, axis-nms, rotated-nms, circle-nms, "
-                                            "sianms, hybrid, oracle."),
+                                            "sianms, hybrid, gated-sianms, oracle."),
     nms_sweep: Optional[str] = typer.Option(None, help="Also run each IoU NMS at these thresholds, e.g. "
                                                        "0.05,0.1,0.2,0.3,0.5."),
     axis_mode: str = typer.Option("ignore-yaw", help="Axis-aligned box: ignore-yaw, nearest-bev or enclosing."),

@@ -29,7 +29,8 @@ from sianms_cli.geometry.quaternion import yaw_to_quat
 from sianms_cli.io import write_json, write_text
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.pipelines.matching import pair_quality
-from sianms_cli.pipelines.methods import HYBRID, ORACLE, SIANMS, AllBoxes, select, split_name
+from sianms_cli.pipelines.methods import (GATED_SIANMS, HYBRID, MATCHERS, ORACLE, SIANMS, AllBoxes, kept_matches,
+                                         select, split_name)
 from sianms_cli.pipelines.scene import BOXES_SCHEMA
 from sianms_cli.pipelines.scoring import RegionFigures
 from sianms_cli.progress import Progress
@@ -92,30 +93,36 @@ def box_table(boxes: AllBoxes, rows: np.ndarray, default_attribute: dict[str, st
     return table
 
 
-def reidentification(boxes: AllBoxes) -> dict[str, dict[str, float]]:
-    """Pair precision / recall / F1 of siaNMS's kept matches against ground-truth identity.
+def reidentification(boxes: AllBoxes, gated: bool = False) -> dict[str, dict[str, float]]:
+    """Pair precision / recall / F1 of each matcher's kept matches against ground-truth identity.
 
     The pairs to find are the oracle's (same instance, both candidates under the same rule),
     before the frustum-overlap dismissal; the dismissals are counted separately, with how many
     of them were right. A wrong kept match is counted by what went wrong:
     ``wrong_without_partner`` when neither detection is in a true pair (no right match existed
     for them: only ``dis_thr`` could have refused it), ``wrong_partner_passed_over`` when one
-    of them is (the embedding or the assignment passed its true partner over).
+    of them is (the embedding or the assignment passed its true partner over). With ``gated``,
+    ``gated-sianms`` is scored too, with the siaNMS matches its gate refused (``gate_refused``)
+    and how many of them were right.
     """
     oracle = boxes.kind == ORACLE
     partnered = np.union1d(boxes.detection_a[oracle], boxes.detection_b[oracle])
     has_partner = np.isin(boxes.detection_a, partnered) | np.isin(boxes.detection_b, partnered)
     out = {}
-    for kind in (SIANMS, ORACLE):
-        mine = boxes.kind == kind
-        kept = mine & ~boxes.dismissed
+    for matcher in (SIANMS, GATED_SIANMS, ORACLE) if gated else (SIANMS, ORACLE):
+        mine = boxes.kind == (SIANMS if matcher == GATED_SIANMS else matcher)
+        kept = kept_matches(boxes, matcher)
         wrong = kept & ~boxes.correct
         figures = pair_quality(int(kept.sum()), int((kept & boxes.correct).sum()), int(oracle.sum()))
         figures["wrong_without_partner"] = int((wrong & ~has_partner).sum())
         figures["wrong_partner_passed_over"] = int((wrong & has_partner).sum())
         figures["dismissed"] = int((mine & boxes.dismissed).sum())
         figures["dismissed_right"] = int((mine & boxes.dismissed & boxes.correct).sum())
-        out[kind] = figures
+        if matcher == GATED_SIANMS:
+            refused = mine & ~boxes.dismissed & ~kept
+            figures["gate_refused"] = int(refused.sum())
+            figures["gate_refused_right"] = int((refused & boxes.correct).sum())
+        out[matcher] = figures
     return out
 
 
@@ -152,7 +159,8 @@ def finish(db: NuScenesDB, config, out: Path, scene_paths: list[Path], timings: 
         write_report(out / f"metrics_{method}.json", reports[method], overwrite=True)
         write_details(out / f"metrics_details_{method}.json", collector.curves, overwrite=True)
         progress.advance()
-    reid = reidentification(boxes) if any(split_name(m)[0] in (SIANMS, HYBRID, ORACLE) for m in methods) else {}
+    bases = {split_name(m)[0] for m in methods}
+    reid = reidentification(boxes, gated=GATED_SIANMS in bases) if bases & {*MATCHERS, HYBRID} else {}
     table = eval_table(reports, reid, counts, duplicates)
     draw_pr_curves(out / "pr_curves.png", curves_at_tp, TABLE_CLASS, CURVE_REGIONS)
     write_json(out / "table.json", table)

@@ -9,6 +9,9 @@ detection (``single``) and one per siaNMS or oracle match. A method is then a se
 - ``sianms``: the single-camera boxes of detections no kept match took, plus one box per
   kept match;
 - ``hybrid``: siaNMS, then the paper's NMS (axis-aligned, IoU 0.3) on what remains;
+- ``gated-sianms`` (ours, not the paper's): siaNMS keeping a match only where its two
+  detections' own single-camera boxes overlap in bird's-eye view (:func:`gate_passed`); the
+  detections of a refused match report their single-camera boxes;
 - ``oracle``: as ``sianms`` with ground-truth identity as the matcher.
 
 Names carry their setting: ``axis-nms@0.1`` is axis-aligned NMS at IoU 0.1; a plain
@@ -24,8 +27,9 @@ import numpy as np
 from sianms_cli.errors import SianmsError
 
 VANILLA, AXIS_NMS, ROTATED_NMS, CIRCLE_NMS = "vanilla", "axis-nms", "rotated-nms", "circle-nms"
-SIANMS, HYBRID, ORACLE = "sianms", "hybrid", "oracle"
-METHODS = (VANILLA, AXIS_NMS, ROTATED_NMS, CIRCLE_NMS, SIANMS, HYBRID, ORACLE)
+SIANMS, HYBRID, GATED_SIANMS, ORACLE = "sianms", "hybrid", "gated-sianms", "oracle"
+METHODS = (VANILLA, AXIS_NMS, ROTATED_NMS, CIRCLE_NMS, SIANMS, HYBRID, GATED_SIANMS, ORACLE)
+MATCHERS = (SIANMS, GATED_SIANMS, ORACLE)  # the methods that report one box per kept cross-camera match
 IOU_METHODS = (AXIS_NMS, ROTATED_NMS)
 PAPER_NMS_IOU = 0.3  # §V-B: greedy axis-aligned BEV NMS at IoU 0.3
 
@@ -117,9 +121,49 @@ def nms_keep(boxes: AllBoxes, rows: np.ndarray, kind: str, threshold: float | No
     return np.sort(rows[np.asarray(kept, dtype=np.int64)])
 
 
-def merged_selection(boxes: AllBoxes, kind: str) -> np.ndarray:
+def single_rows(boxes: AllBoxes, detections: np.ndarray) -> np.ndarray:
+    """The row of each detection's single-camera box; -1 for a detection without one."""
+    singles = np.flatnonzero(boxes.kind == "single")
+    order = np.argsort(boxes.detection_a[singles])
+    ids = boxes.detection_a[singles][order]
+    if len(ids) == 0:
+        return np.full(len(detections), -1, dtype=np.int64)
+    position = np.minimum(np.searchsorted(ids, detections), len(ids) - 1)
+    return np.where(ids[position] == detections, singles[order][position], -1)
+
+
+def gate_passed(boxes: AllBoxes, rows: np.ndarray) -> np.ndarray:
+    """(len(rows),) bool: the two detections of each match row have single-camera boxes that
+    overlap in bird's-eye view (rotated IoU > 0).
+
+    Two distinct cars cannot share ground, so two detections whose own 3-D boxes lie apart
+    are two objects whatever their embeddings say; the gate has no parameter to tune.
+    """
+    from sianms_cli.geometry.bev import rotated_iou_pairs
+
+    a, b = single_rows(boxes, boxes.detection_a[rows]), single_rows(boxes, boxes.detection_b[rows])
+    both = (a >= 0) & (b >= 0)
+
+    def bev(single: np.ndarray) -> np.ndarray:
+        return np.column_stack([boxes.translation[single, :2], boxes.size[single, :2], boxes.yaw[single]])
+
+    passed = np.zeros(len(rows), dtype=bool)
+    passed[both] = rotated_iou_pairs(bev(a[both]), bev(b[both])) > 0
+    return passed
+
+
+def kept_matches(boxes: AllBoxes, matcher: str) -> np.ndarray:
+    """(B,) bool: the match rows ``matcher`` (one of :data:`MATCHERS`) keeps."""
+    kept = (boxes.kind == (SIANMS if matcher == GATED_SIANMS else matcher)) & ~boxes.dismissed
+    if matcher == GATED_SIANMS:
+        rows = np.flatnonzero(kept)
+        kept[rows] = gate_passed(boxes, rows)
+    return kept
+
+
+def merged_selection(boxes: AllBoxes, matcher: str) -> np.ndarray:
     """Rows of a matcher's method: its kept matches, and the single boxes none of them took."""
-    kept_match = (boxes.kind == kind) & ~boxes.dismissed
+    kept_match = kept_matches(boxes, matcher)
     taken = np.concatenate([boxes.detection_a[kept_match], boxes.detection_b[kept_match]])
     single = (boxes.kind == "single") & ~np.isin(boxes.detection_a, taken)
     return np.flatnonzero(single | kept_match)
@@ -133,7 +177,7 @@ def select(boxes: AllBoxes, method: str, axis_mode: str = "ignore-yaw") -> np.nd
         return singles
     if base in (AXIS_NMS, ROTATED_NMS, CIRCLE_NMS):
         return nms_keep(boxes, singles, base, threshold, axis_mode)
-    if base in (SIANMS, ORACLE):
+    if base in MATCHERS:
         return merged_selection(boxes, base)
     if base == HYBRID:
         return nms_keep(boxes, merged_selection(boxes, SIANMS), AXIS_NMS, PAPER_NMS_IOU, axis_mode)

@@ -30,7 +30,7 @@ from sianms_cli.pipelines.methods import AllBoxes, split_name
 EXTENT_M = 50.0
 MAX_POINTS = 40_000  # drawn per panel (a stride through the sweep), so a picture stays light
 COLOURS = {"vanilla": "tab:red", "axis-nms": "tab:orange", "rotated-nms": "tab:brown", "circle-nms": "tab:pink",
-           "sianms": "tab:blue", "hybrid": "tab:purple", "oracle": "tab:cyan"}
+           "sianms": "tab:blue", "hybrid": "tab:purple", "gated-sianms": "tab:olive", "oracle": "tab:cyan"}
 
 
 def pick_samples(boxes: AllBoxes, count: int) -> list[int]:

@@ -27,8 +27,9 @@ PAPER_TABLE_I = {  # §V, Table I: F-PointNets on nuScenes val, car
 }
 COLUMNS = ("AP", "ATE", "ASE", "AOE")
 REID_WRONG_COLUMNS = ("wrong, no true partner", "wrong, partner passed over", "dismissed (frustums apart)",
-                      "dismissed but right")
-REID_WRONG_FIGURES = ("wrong_without_partner", "wrong_partner_passed_over", "dismissed", "dismissed_right")
+                      "dismissed but right", "refused by the gate", "refused but right")
+REID_WRONG_FIGURES = ("wrong_without_partner", "wrong_partner_passed_over", "dismissed", "dismissed_right",
+                      "gate_refused", "gate_refused_right")
 
 
 def class_figures(report: MetricsReport, region: str, name: str) -> dict[str, float | int | None]:
@@ -134,7 +135,7 @@ def table_markdown(table: Mapping[str, Any]) -> str:
     if table["reidentification"]:
         lines += ["", "Re-identification against ground-truth identity (pairs to find: the oracle's):", "",
                   "| matcher | matched | correct | to find | precision | recall | F1 | " + " | ".join(REID_WRONG_COLUMNS) + " |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "|---|" + "---|" * (6 + len(REID_WRONG_COLUMNS))]
         for matcher, f in table["reidentification"].items():
             lines.append(f"| {matcher} | {f['pairs_matched']} | {f['pairs_correct']} | {f['pairs_true']} | "
                          f"{format_ratio(f['precision'])} | {format_ratio(f['recall'])} | {format_ratio(f['f1'])} | "
@@ -144,7 +145,7 @@ def table_markdown(table: Mapping[str, Any]) -> str:
 
 def reid_wrong_cells(figures: Mapping[str, Any]) -> list[str]:
     """What went wrong in a matcher's pairs (:func:`~sianms_cli.pipelines.finish.reidentification`);
-    "-" for a figure an older evaluation did not record."""
+    "-" for a figure an older evaluation did not record, or one the matcher has not (a gate)."""
     return [str(figures.get(name, "-")) for name in REID_WRONG_FIGURES]
 
 

@@ -390,7 +390,8 @@ def reid_blocks(summary: Mapping[str, Any]) -> list[Block]:
             Paragraph("Against ground-truth identity; the pairs to find are the oracle's. A wrong match has "
                       "\"no true partner\" when neither of its detections has its own object among the other "
                       "camera's candidates (only the distance threshold could have refused it); else it passed a "
-                      "true partner over."),
+                      "true partner over. gated-sianms (ours, not the paper's) keeps a siaNMS match only where its two "
+                      "detections' own single-camera boxes overlap in bird's-eye view."),
             Table("reidentification", ["matcher", "matched", "correct", "to find", "precision", "recall", "F1",
                                        *REID_WRONG_COLUMNS], rows)]
 

@@ -79,9 +79,13 @@ def test_the_oracle_matches_only_one_instance_and_sianms_is_scored_against_it(ev
     assert oracle and all(row["correct"] for row in oracle)
     reid = result.table["reidentification"]
     assert reid["oracle"]["precision"] == 1.0 and reid["sianms"]["pairs_true"] == len(oracle)
-    sianms = reid["sianms"]
-    assert (sianms["wrong_without_partner"] + sianms["wrong_partner_passed_over"]
-            == sianms["pairs_matched"] - sianms["pairs_correct"])
+    sianms, gated = reid["sianms"], reid["gated-sianms"]
+    for matcher in (sianms, gated):
+        assert (matcher["wrong_without_partner"] + matcher["wrong_partner_passed_over"]
+                == matcher["pairs_matched"] - matcher["pairs_correct"])
+    assert gated["pairs_matched"] + gated["gate_refused"] == sianms["pairs_matched"]
+    assert gated["pairs_correct"] + gated["gate_refused_right"] == sianms["pairs_correct"]
+    assert result.table["boxes"]["gated-sianms"] == result.table["boxes"]["sianms"] + gated["gate_refused"]
     single = [row for row in rows if row["kind"] == "single"]
     assert all(row["detection_b"] is None and row["translation"] is not None for row in single)
 

@@ -57,6 +57,10 @@ def table_of(methods) -> dict:
         "reidentification": {"sianms": {"precision": 0.7123, "recall": 0.8456, "f1": 0.7732, "pairs_matched": 60,
                                         "pairs_correct": 43, "pairs_true": 48, "wrong_without_partner": 13,
                                         "wrong_partner_passed_over": 4, "dismissed": 12, "dismissed_right": 1},
+                             "gated-sianms": {"precision": 0.9, "recall": 0.75, "f1": 0.8182, "pairs_matched": 40,
+                                              "pairs_correct": 36, "pairs_true": 48, "wrong_without_partner": 3,
+                                              "wrong_partner_passed_over": 1, "dismissed": 12, "dismissed_right": 1,
+                                              "gate_refused": 20, "gate_refused_right": 7},
                              "oracle": {"precision": 1.0, "recall": 1.0, "f1": 1.0, "pairs_matched": 48,
                                         "pairs_correct": 48, "pairs_true": 48, "dismissed": 3}},
         "paper_table_i": PAPER_TABLE_I,
@@ -166,9 +170,11 @@ def test_reidentification_duplicates_and_timings(evaluation):
     report = run(ReportConfig(eval=str(evaluation)))
     tables = parse_html(report.html).tables
     assert tables["reidentification"][1] == ["sianms", "60", "43", "48", format_ratio(0.7123), format_ratio(0.8456),
-                                             "0.773", "13", "4", "12", "1"]
+                                             "0.773", "13", "4", "12", "1", "-", "-"]
+    assert tables["reidentification"][2][0] == "gated-sianms"
+    assert tables["reidentification"][2][-6:] == ["3", "1", "12", "1", "20", "7"]
     # The oracle's figures are those of an evaluation made before the wrong matches were split.
-    assert tables["reidentification"][2][-4:] == ["-", "-", "3", "-"]
+    assert tables["reidentification"][3][-6:] == ["-", "-", "3", "-", "-", "-"]
     assert tables["duplicates"][0] == ["method", "All", "Overlap", "FRONT / FRONT_RIGHT"]
     assert tables["duplicates"][2] == ["axis-nms", "22", "21", "20"]
     assert tables["timings"][1:] == [["scenes", "30.00", "75.0 %"], ["pictures", "5.00", "12.5 %"],
@@ -233,7 +239,7 @@ def test_identical_runs_pass_and_every_cell_is_compared(evaluation, tmp_path):
     report = run(ReportConfig(eval=str(evaluation), baseline=str(baseline)))
     comparison = report.content["comparison"]
     assert report.regressions == [] and len(comparison["cells"]) == 2 * len(METHODS) * 4
-    assert len(comparison["reidentification"]) == 2 * 3
+    assert len(comparison["reidentification"]) == 3 * 3
     assert all(row["difference"] == 0 for row in comparison["cells"])
     assert comparison["fingerprints_changed"] == ["dis_thr", "siamese_sha256"]
     assert comparison["allowances"] == dict(DEFAULT_ALLOWANCES)
