@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sianms_cli.errors import SianmsError
+from sianms_cli.geometry.bev import rotated_iou_pairs
 
 VANILLA, AXIS_NMS, ROTATED_NMS, CIRCLE_NMS = "vanilla", "axis-nms", "rotated-nms", "circle-nms"
 SIANMS, HYBRID, GATED_SIANMS, ORACLE = "sianms", "hybrid", "gated-sianms", "oracle"
@@ -139,8 +140,6 @@ def gate_passed(boxes: AllBoxes, rows: np.ndarray) -> np.ndarray:
     Two distinct cars cannot share ground, so two detections whose own 3-D boxes lie apart
     are two objects whatever their embeddings say; the gate has no parameter to tune.
     """
-    from sianms_cli.geometry.bev import rotated_iou_pairs
-
     a, b = single_rows(boxes, boxes.detection_a[rows]), single_rows(boxes, boxes.detection_b[rows])
     both = (a >= 0) & (b >= 0)
 
