@@ -2,7 +2,10 @@
 
 import json
 import shutil
+import subprocess
+import sys
 from dataclasses import replace
+from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
@@ -158,3 +161,14 @@ def test_a_trainval_demo_synthesises_trainval_names_and_prepares_its_train_and_v
     assert (len(train["split_scenes"]), len(val["split_scenes"])) == (2, 1)  # round(3 x 150 / 850) = 1
     record = json.loads((out / "demo.json").read_text())
     assert record["config"]["version"] == "v1.0-trainval" and not record["complete"]
+
+
+def test_match_geometry_reads_a_finished_demo(interrupted_then_resumed):
+    out, table = interrupted_then_resumed[2].out, interrupted_then_resumed[2].table
+    script = Path(__file__).resolve().parents[1] / "scripts" / "match_geometry.py"
+    result = subprocess.run([sys.executable, str(script), str(out)], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    counts = {line.split()[2]: int(line.split()[1]) for line in result.stdout.splitlines()}
+    reid = table["reidentification"]["sianms"]
+    assert counts.get("right", 0) == reid["pairs_correct"]
+    assert counts.get("wrong", 0) == reid["pairs_matched"] - reid["pairs_correct"]

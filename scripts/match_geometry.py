@@ -1,0 +1,71 @@
+"""How far apart the two detections of siaNMS's kept matches lie, right matches against wrong ones.
+
+    python scripts/match_geometry.py sianms-demo-s0 sianms-demo-s1 ...
+
+For each `sianms demo` folder (its dataset, and its evaluation's per-scene boxes tables), the
+kept siaNMS matches (the frustum test's dismissals left out) split by ground-truth identity:
+how many there are, the share whose two single-camera boxes overlap in bird's-eye view (what
+``gated-sianms`` keeps), and the distance between those boxes' centres (median, 10th and
+90th percentiles).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from sianms_cli.geometry.bev import rotated_iou_pairs
+from sianms_cli.pipelines.methods import SIANMS, AllBoxes, single_rows
+
+
+def match_geometry(boxes: AllBoxes) -> dict[str, dict[str, float]]:
+    """{"right" | "wrong": {count, overlapping, median_m, p10_m, p90_m}} of the kept siaNMS matches
+    whose two detections both have single-camera boxes."""
+    rows = np.flatnonzero((boxes.kind == SIANMS) & ~boxes.dismissed)
+    a, b = single_rows(boxes, boxes.detection_a[rows]), single_rows(boxes, boxes.detection_b[rows])
+    both = (a >= 0) & (b >= 0)
+    rows, a, b = rows[both], a[both], b[both]
+
+    def bev(single: np.ndarray) -> np.ndarray:
+        return np.column_stack([boxes.translation[single, :2], boxes.size[single, :2], boxes.yaw[single]])
+
+    overlapping = rotated_iou_pairs(bev(a), bev(b)) > 0
+    distance = np.hypot(*(boxes.translation[a, :2] - boxes.translation[b, :2]).T)
+    out = {}
+    for name, mine in (("right", boxes.correct[rows]), ("wrong", ~boxes.correct[rows])):
+        d = distance[mine]
+        out[name] = {"count": int(mine.sum()), "overlapping": float(overlapping[mine].mean()) if mine.any() else None,
+                     **{key: float(np.percentile(d, q)) if mine.any() else None
+                        for key, q in (("median_m", 50), ("p10_m", 10), ("p90_m", 90))}}
+    return out
+
+
+def demo_boxes(folder: Path) -> AllBoxes:
+    """The boxes of a `sianms demo` folder's evaluation."""
+    from sianms_cli.evaluation.dataset import eval_split
+    from sianms_cli.nuscenes.loader import NuScenesDB
+    from sianms_cli.pipelines.finish import read_boxes
+
+    config = json.loads((folder / "eval" / "eval.json").read_text())["config"]
+    version = json.loads((folder / "demo.json").read_text())["config"]["version"]
+    split = eval_split(NuScenesDB(str(folder / "data"), version), config["split"])
+    return read_boxes([folder / "eval" / "scenes" / f"{name}.parquet" for name in config["split_scenes"]],
+                      list(split.sample_tokens))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("demos", nargs="+", type=Path, help="`sianms demo` output folders")
+    for folder in parser.parse_args().demos:
+        for name, f in match_geometry(demo_boxes(folder)).items():
+            if f["count"]:
+                print(f"{folder.name}: {f['count']} {name} matches, single-camera boxes overlapping in BEV "
+                      f"{100 * f['overlapping']:.0f} %, centres {f['median_m']:.2f} m apart (median; p10 "
+                      f"{f['p10_m']:.2f}, p90 {f['p90_m']:.2f})")
+
+
+if __name__ == "__main__":
+    main()

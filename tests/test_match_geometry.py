@@ -1,0 +1,44 @@
+"""scripts/match_geometry.py: where siaNMS's right and wrong matches put their two single-camera boxes."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sianms_cli.pipelines.methods import AllBoxes
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "match_geometry.py"
+spec = importlib.util.spec_from_file_location("match_geometry", SCRIPT)
+match_geometry = sys.modules["match_geometry"] = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(match_geometry)
+
+
+def boxes_of(rows):
+    """AllBoxes of (kind, detection_a, detection_b, dismissed, correct, (x, y)) rows: 1.8 x 4.6 m cars along x."""
+    kind, a, b, dismissed, correct, xy = (np.array(column) for column in zip(*rows))
+    count = len(rows)
+    return AllBoxes(sample=np.zeros(count, np.int64), kind=kind, detection_a=a, detection_b=b,
+                    classes=np.full(count, "car"), score=np.ones(count),
+                    translation=np.column_stack([xy, np.zeros(count)]), size=np.tile([1.8, 4.6, 1.5], (count, 1)),
+                    yaw=np.zeros(count), dismissed=dismissed.astype(bool), correct=correct.astype(bool),
+                    wedges=np.full((count, 12), np.nan))
+
+
+def test_right_and_wrong_matches_by_overlap_and_centre_distance():
+    boxes = boxes_of([
+        ("single", "a1", "", False, False, (10.0, 0.0)), ("single", "b1", "", False, False, (10.0, 0.6)),
+        ("single", "a2", "", False, False, (20.0, 0.0)), ("single", "b2", "", False, False, (23.0, 4.0)),
+        ("single", "a3", "", False, False, (30.0, 0.0)), ("single", "b3", "", False, False, (36.0, 0.0)),
+        ("single", "a4", "", False, False, (40.0, 0.0)), ("single", "b4", "", False, False, (40.0, 0.1)),
+        ("sianms", "a1", "b1", False, True, (10.0, 0.3)),  # right, 0.6 m apart, overlapping
+        ("sianms", "a2", "b2", False, True, (21.5, 2.0)),  # right, 5 m apart, not overlapping
+        ("sianms", "a3", "b3", False, False, (33.0, 0.0)),  # wrong, a car length and more apart
+        ("sianms", "a4", "b4", True, False, (40.0, 0.0)),  # dismissed by the frustum test: left out
+        ("sianms", "a1", "b9", False, False, (10.0, 0.0)),  # b9 has no single box: left out
+    ])
+    figures = match_geometry.match_geometry(boxes)
+    assert figures["right"]["count"] == 2 and figures["right"]["overlapping"] == 0.5
+    assert figures["right"]["median_m"] == pytest.approx((0.6 + 5.0) / 2)
+    assert figures["wrong"] == {"count": 1, "overlapping": 0.0, "median_m": 6.0, "p10_m": 6.0, "p90_m": 6.0}
