@@ -30,7 +30,7 @@ from sianms_cli.io import write_json, write_text
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.pipelines.matching import pair_quality
 from sianms_cli.pipelines.methods import (GATED_SIANMS, HYBRID, MATCHERS, ORACLE, SIANMS, AllBoxes, kept_matches,
-                                         select, split_name)
+                                         match_kind, select, split_name)
 from sianms_cli.pipelines.scene import BOXES_SCHEMA
 from sianms_cli.pipelines.scoring import RegionFigures
 from sianms_cli.progress import Progress
@@ -110,7 +110,7 @@ def reidentification(boxes: AllBoxes, gated: bool = False) -> dict[str, dict[str
     has_partner = np.isin(boxes.detection_a, partnered) | np.isin(boxes.detection_b, partnered)
     out = {}
     for matcher in (SIANMS, GATED_SIANMS, ORACLE) if gated else (SIANMS, ORACLE):
-        mine = boxes.kind == (SIANMS if matcher == GATED_SIANMS else matcher)
+        mine = boxes.kind == match_kind(matcher)
         kept = kept_matches(boxes, matcher)
         wrong = kept & ~boxes.correct
         figures = pair_quality(int(kept.sum()), int((kept & boxes.correct).sum()), int(oracle.sum()))

@@ -151,9 +151,14 @@ def gate_passed(boxes: AllBoxes, rows: np.ndarray) -> np.ndarray:
     return passed
 
 
+def match_kind(matcher: str) -> str:
+    """The kind of the match rows ``matcher`` chooses from: the gate chooses among siaNMS's."""
+    return SIANMS if matcher == GATED_SIANMS else matcher
+
+
 def kept_matches(boxes: AllBoxes, matcher: str) -> np.ndarray:
     """(B,) bool: the match rows ``matcher`` (one of :data:`MATCHERS`) keeps."""
-    kept = (boxes.kind == (SIANMS if matcher == GATED_SIANMS else matcher)) & ~boxes.dismissed
+    kept = (boxes.kind == match_kind(matcher)) & ~boxes.dismissed
     if matcher == GATED_SIANMS:
         rows = np.flatnonzero(kept)
         kept[rows] = gate_passed(boxes, rows)
