@@ -17,22 +17,17 @@ from pathlib import Path
 
 import numpy as np
 
-from sianms_cli.geometry.bev import rotated_iou_pairs
-from sianms_cli.pipelines.methods import SIANMS, AllBoxes, single_rows
+from sianms_cli.pipelines.methods import SIANMS, AllBoxes, gate_passed, match_singles
 
 
 def match_geometry(boxes: AllBoxes) -> dict[str, dict[str, float]]:
     """{"right" | "wrong": {count, overlapping, median_m, p10_m, p90_m}} of the kept siaNMS matches
     whose two detections both have single-camera boxes."""
     rows = np.flatnonzero((boxes.kind == SIANMS) & ~boxes.dismissed)
-    a, b = single_rows(boxes, boxes.detection_a[rows]), single_rows(boxes, boxes.detection_b[rows])
+    a, b = match_singles(boxes, rows)
     both = (a >= 0) & (b >= 0)
     rows, a, b = rows[both], a[both], b[both]
-
-    def bev(single: np.ndarray) -> np.ndarray:
-        return np.column_stack([boxes.translation[single, :2], boxes.size[single, :2], boxes.yaw[single]])
-
-    overlapping = rotated_iou_pairs(bev(a), bev(b)) > 0
+    overlapping = gate_passed(boxes, rows)
     distance = np.hypot(*(boxes.translation[a, :2] - boxes.translation[b, :2]).T)
     out = {}
     for name, mine in (("right", boxes.correct[rows]), ("wrong", ~boxes.correct[rows])):

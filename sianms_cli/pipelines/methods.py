@@ -133,6 +133,17 @@ def single_rows(boxes: AllBoxes, detections: np.ndarray) -> np.ndarray:
     return np.where(ids[position] == detections, singles[order][position], -1)
 
 
+def match_singles(boxes: AllBoxes, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The single-camera box rows of each match row's two detections (-1 where one has none)."""
+    both = single_rows(boxes, np.concatenate([boxes.detection_a[rows], boxes.detection_b[rows]]))
+    return both[:len(rows)], both[len(rows):]
+
+
+def bev_boxes(boxes: AllBoxes, rows: np.ndarray) -> np.ndarray:
+    """(len(rows), 5) bird's-eye-view boxes (x, y, width, length, yaw) of ``rows``."""
+    return np.column_stack([boxes.translation[rows, :2], boxes.size[rows, :2], boxes.yaw[rows]])
+
+
 def gate_passed(boxes: AllBoxes, rows: np.ndarray) -> np.ndarray:
     """(len(rows),) bool: the two detections of each match row have single-camera boxes that
     overlap in bird's-eye view (rotated IoU > 0).
@@ -140,14 +151,10 @@ def gate_passed(boxes: AllBoxes, rows: np.ndarray) -> np.ndarray:
     Two distinct cars cannot share ground, so two detections whose own 3-D boxes lie apart
     are two objects whatever their embeddings say; the gate has no parameter to tune.
     """
-    a, b = single_rows(boxes, boxes.detection_a[rows]), single_rows(boxes, boxes.detection_b[rows])
+    a, b = match_singles(boxes, rows)
     both = (a >= 0) & (b >= 0)
-
-    def bev(single: np.ndarray) -> np.ndarray:
-        return np.column_stack([boxes.translation[single, :2], boxes.size[single, :2], boxes.yaw[single]])
-
     passed = np.zeros(len(rows), dtype=bool)
-    passed[both] = rotated_iou_pairs(bev(a[both]), bev(b[both])) > 0
+    passed[both] = rotated_iou_pairs(bev_boxes(boxes, a[both]), bev_boxes(boxes, b[both])) > 0
     return passed
 
 
