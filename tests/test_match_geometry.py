@@ -4,10 +4,9 @@ import importlib.util
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
-from sianms_cli.pipelines.methods import AllBoxes
+from box_rows import all_boxes
 
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "match_geometry.py"
 spec = importlib.util.spec_from_file_location("match_geometry", SCRIPT)
@@ -15,19 +14,8 @@ match_geometry = sys.modules["match_geometry"] = importlib.util.module_from_spec
 spec.loader.exec_module(match_geometry)
 
 
-def boxes_of(rows):
-    """AllBoxes of (kind, detection_a, detection_b, dismissed, correct, (x, y)) rows: 1.8 x 4.6 m cars along x."""
-    kind, a, b, dismissed, correct, xy = (np.array(column) for column in zip(*rows))
-    count = len(rows)
-    return AllBoxes(sample=np.zeros(count, np.int64), kind=kind, detection_a=a, detection_b=b,
-                    classes=np.full(count, "car"), score=np.ones(count),
-                    translation=np.column_stack([xy, np.zeros(count)]), size=np.tile([1.8, 4.6, 1.5], (count, 1)),
-                    yaw=np.zeros(count), dismissed=dismissed.astype(bool), correct=correct.astype(bool),
-                    wedges=np.full((count, 12), np.nan))
-
-
 def test_right_and_wrong_matches_by_overlap_and_centre_distance():
-    boxes = boxes_of([
+    boxes = all_boxes([
         ("single", "a1", "", False, False, (10.0, 0.0)), ("single", "b1", "", False, False, (10.0, 0.6)),
         ("single", "a2", "", False, False, (20.0, 0.0)), ("single", "b2", "", False, False, (23.0, 4.0)),
         ("single", "a3", "", False, False, (30.0, 0.0)), ("single", "b3", "", False, False, (36.0, 0.0)),

@@ -3,21 +3,13 @@
 import numpy as np
 
 from sianms_cli.pipelines.finish import reidentification
-from sianms_cli.pipelines.methods import AllBoxes, gate_passed, select, single_rows
+from sianms_cli.pipelines.methods import gate_passed, select, single_rows
 
-
-def matches(rows: list[tuple[str, str, str, bool, bool]]) -> AllBoxes:
-    """AllBoxes of (kind, detection_a, detection_b, dismissed, correct) rows; the geometry is irrelevant here."""
-    kind, a, b, dismissed, correct = (np.array(column) for column in zip(*rows))
-    count = len(rows)
-    return AllBoxes(sample=np.zeros(count, np.int64), kind=kind, detection_a=a, detection_b=b,
-                    classes=np.full(count, "car"), score=np.ones(count), translation=np.zeros((count, 3)),
-                    size=np.ones((count, 3)), yaw=np.zeros(count), dismissed=dismissed.astype(bool),
-                    correct=correct.astype(bool), wedges=np.full((count, 12), np.nan))
+from box_rows import all_boxes
 
 
 def test_wrong_matches_are_split_by_whether_a_true_partner_was_there():
-    boxes = matches([
+    boxes = all_boxes([
         ("oracle", "a1", "b1", False, True),  # the true pairs: a1-b1, a2-b2, a3-b3
         ("oracle", "a2", "b2", False, True),
         ("oracle", "a3", "b3", True, True),
@@ -39,32 +31,21 @@ def test_wrong_matches_are_split_by_whether_a_true_partner_was_there():
     assert (oracle["dismissed"], oracle["dismissed_right"]) == (1, 1)
 
 
-def placed(rows: list[tuple[str, str, str, bool, tuple[float, float]]]) -> AllBoxes:
-    """AllBoxes of (kind, detection_a, detection_b, correct, (x, y)) rows: 1.8 x 4.6 m cars along x."""
-    kind, a, b, correct, xy = (np.array(column) for column in zip(*rows))
-    count = len(rows)
-    return AllBoxes(sample=np.zeros(count, np.int64), kind=kind, detection_a=a, detection_b=b,
-                    classes=np.full(count, "car"), score=np.ones(count),
-                    translation=np.column_stack([xy, np.zeros(count)]), size=np.tile([1.8, 4.6, 1.5], (count, 1)),
-                    yaw=np.zeros(count), dismissed=np.zeros(count, bool), correct=correct.astype(bool),
-                    wedges=np.full((count, 12), np.nan))
-
-
 # Single-camera boxes: a1/b1 one car seen twice (0.5 m apart), a2/b2 one car whose two boxes
 # missed each other (6 m apart), a3 and b3 two cars of a parked row (one length apart, touching:
 # no shared area).
 GATE_SCENE = [
-    ("single", "a1", "", False, (10.0, 0.0)), ("single", "b1", "", False, (10.5, 0.0)),
-    ("single", "a2", "", False, (20.0, 5.0)), ("single", "b2", "", False, (20.0, 11.0)),
-    ("single", "a3", "", False, (30.0, 0.0)), ("single", "b3", "", False, (30.0, 1.8)),
-    ("oracle", "a1", "b1", True, (10.2, 0.0)), ("oracle", "a2", "b2", True, (20.0, 8.0)),
-    ("sianms", "a1", "b1", True, (10.2, 0.0)), ("sianms", "a2", "b2", True, (20.0, 8.0)),
-    ("sianms", "a3", "b3", False, (30.0, 0.9)),
+    ("single", "a1", "", False, False, (10.0, 0.0)), ("single", "b1", "", False, False, (10.5, 0.0)),
+    ("single", "a2", "", False, False, (20.0, 5.0)), ("single", "b2", "", False, False, (20.0, 11.0)),
+    ("single", "a3", "", False, False, (30.0, 0.0)), ("single", "b3", "", False, False, (30.0, 1.8)),
+    ("oracle", "a1", "b1", False, True, (10.2, 0.0)), ("oracle", "a2", "b2", False, True, (20.0, 8.0)),
+    ("sianms", "a1", "b1", False, True, (10.2, 0.0)), ("sianms", "a2", "b2", False, True, (20.0, 8.0)),
+    ("sianms", "a3", "b3", False, False, (30.0, 0.9)),
 ]
 
 
 def test_the_gate_keeps_only_matches_whose_single_camera_boxes_share_ground():
-    boxes = placed(GATE_SCENE)
+    boxes = all_boxes(GATE_SCENE)
     match_rows = np.flatnonzero(boxes.kind == "sianms")
     assert gate_passed(boxes, match_rows).tolist() == [True, False, False]
     assert single_rows(boxes, np.array(["b3", "a1", "zz"])).tolist() == [5, 0, -1]
@@ -81,6 +62,6 @@ def test_the_gate_keeps_only_matches_whose_single_camera_boxes_share_ground():
 
 
 def test_a_match_whose_detection_has_no_single_box_fails_the_gate():
-    boxes = placed([("single", "a1", "", False, (0.0, 0.0)), ("sianms", "a1", "b9", False, (0.0, 0.0))])
+    boxes = all_boxes([("single", "a1", "", False, False), ("sianms", "a1", "b9", False, False)])
     assert gate_passed(boxes, np.array([1])).tolist() == [False]
-    assert gate_passed(placed(GATE_SCENE[6:]), np.array([2])).tolist() == [False]  # no single box at all
+    assert gate_passed(all_boxes(GATE_SCENE[6:]), np.array([2])).tolist() == [False]  # no single box at all
