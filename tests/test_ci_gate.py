@@ -1,5 +1,6 @@
-"""The CI gate's committed expectation (.ci/demo-quick-report.json): a baseline `sianms report`
-reads, which passes against itself and fails on one planted regression."""
+"""The CI gate's committed expectations (.ci/demo-quick-report.json, and one per CPU maker whose
+training rounds otherwise, .ci/demo-quick-report.<vendor_id>.json): baselines `sianms report`
+reads, each of which passes against itself and fails on one planted regression."""
 
 import copy
 import json
@@ -9,12 +10,27 @@ import pytest
 
 from sianms_cli.reporting.report import DEFAULT_ALLOWANCES, compare, read_baseline
 
-EXPECTED = Path(__file__).resolve().parents[1] / ".ci" / "demo-quick-report.json"
+BASELINES = sorted((Path(__file__).resolve().parents[1] / ".ci").glob("demo-quick-report*.json"))
+
+
+@pytest.fixture(scope="module", params=BASELINES, ids=[path.name for path in BASELINES])
+def baseline_path(request):
+    return request.param
 
 
 @pytest.fixture(scope="module")
-def expected():
-    return read_baseline(EXPECTED)
+def expected(baseline_path):
+    return read_baseline(baseline_path)
+
+
+def test_the_default_baseline_and_the_amd_one_are_there():
+    assert [path.name for path in BASELINES] == ["demo-quick-report.AuthenticAMD.json", "demo-quick-report.json"]
+
+
+def test_the_baselines_share_the_dataset_and_cache(expected):
+    default = read_baseline(BASELINES[-1])
+    assert expected["config"]["dataset_sha256"] == default["config"]["dataset_sha256"]
+    assert expected["fingerprints"]["cache_sha256"] == default["fingerprints"]["cache_sha256"]
 
 
 def regressions(now, baseline):
@@ -45,5 +61,5 @@ def test_a_change_within_the_allowance_passes(expected):
     assert regressions(now, expected) == []
 
 
-def test_the_expected_report_is_strict_json():
-    json.loads(EXPECTED.read_text(), parse_constant=lambda name: pytest.fail(f"{name} in {EXPECTED}"))
+def test_the_expected_report_is_strict_json(baseline_path):
+    json.loads(baseline_path.read_text(), parse_constant=lambda name: pytest.fail(f"{name} in {baseline_path}"))

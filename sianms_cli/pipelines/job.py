@@ -245,13 +245,17 @@ def write_scene(evaluator: SceneEvaluator, cache: Path, out: Path, token: str, n
 # --------------------------------------------------------------------------- workers
 
 _WORKER: tuple[SceneEvaluator, Path, Path] | None = None
+SCENE_TORCH_THREADS = 1
+"""Torch threads of the scenes stage, in a worker process and in this one alike: on some CPUs
+(AMD EPYC, measured) a matrix kernel sums in another order on another thread count, at some batch
+sizes, so the scenes' bytes would depend on ``--workers``; parallelism comes from the workers."""
 
 
 def _init_worker(config: EvalConfig, settings: SceneSettings, out: str) -> None:
     global _WORKER
     import torch
 
-    torch.set_num_threads(1)
+    torch.set_num_threads(SCENE_TORCH_THREADS)
     predictor, encoder, _ = load_models(config)
     db = NuScenesDB(config.dataroot, config.version)
     _WORKER = (SceneEvaluator(db, predictor, encoder, settings), Path(config.cache), Path(out))
@@ -267,8 +271,15 @@ def _run_in_worker(args: tuple[str, str]) -> tuple[str, str]:
 def _run_scenes(evaluator: SceneEvaluator, config: EvalConfig, settings: SceneSettings, out: Path,
                 todo: list[tuple[str, str]], workers: int) -> Iterator[tuple[str, str]]:
     if workers == 1 or len(todo) <= 1:
-        for token, name in todo:
-            yield name, write_scene(evaluator, Path(config.cache), out, token, name)
+        import torch
+
+        threads = torch.get_num_threads()
+        torch.set_num_threads(SCENE_TORCH_THREADS)
+        try:
+            for token, name in todo:
+                yield name, write_scene(evaluator, Path(config.cache), out, token, name)
+        finally:
+            torch.set_num_threads(threads)
         return
     with worker_pool(min(workers, len(todo)), _init_worker, (config, settings, str(out))) as pool:
         yield from pool.imap_unordered(_run_in_worker, todo)

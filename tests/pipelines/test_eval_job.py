@@ -139,6 +139,22 @@ def test_overwrite_with_other_methods_keeps_the_scenes(eval_inputs, evaluated, t
     assert (copy / "results_sianms.json").read_bytes() == (out / "results_sianms.json").read_bytes()
 
 
+def test_scenes_run_on_one_torch_thread_in_this_process_too(eval_inputs, tmp_path, monkeypatch):
+    """Workers run scenes on one torch thread; so must a run without them, or the scenes' bytes
+    would depend on --workers wherever a kernel sums in another order on more threads."""
+    import torch
+
+    from sianms_cli.pipelines import job
+
+    seen = []
+    write_scene = job.write_scene
+    monkeypatch.setattr(job, "write_scene", lambda *args: seen.append(torch.get_num_threads()) or write_scene(*args))
+    torch.set_num_threads(2)
+    run(config_of(eval_inputs, methods="vanilla", pictures=0), tmp_path / "one", workers=1)
+    assert seen and set(seen) == {job.SCENE_TORCH_THREADS}
+    assert torch.get_num_threads() == 2
+
+
 def test_two_workers_write_the_same_scenes_as_one(eval_inputs, evaluated, tmp_path):
     out, _ = evaluated
     result = run(config_of(eval_inputs, methods="vanilla", pictures=0), tmp_path / "two", workers=2)
