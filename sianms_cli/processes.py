@@ -27,6 +27,26 @@ from typing import Any, Callable, Iterable, Iterator
 from sianms_cli.errors import SianmsError
 
 
+TASK_TORCH_THREADS = 1
+"""Torch threads a scene task runs on, in a worker and in the parent alike: on some CPUs (AMD
+EPYC, measured) a matrix kernel sums in another order on another thread count, at some batch
+sizes, so a job's bytes would depend on ``--workers``; parallelism comes from the workers."""
+
+
+@contextmanager
+def task_torch_threads() -> Iterator[None]:
+    """Run the block on :data:`TASK_TORCH_THREADS` torch threads, restoring the count after
+    (torch is imported here: a job without it never pays for the import)."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(TASK_TORCH_THREADS)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
+
+
 class Terminated(KeyboardInterrupt):
     """The process received SIGTERM."""
 

@@ -45,7 +45,7 @@ from sianms_cli.pipelines.finish import finish
 from sianms_cli.pipelines.methods import parse_methods, parse_thresholds
 from sianms_cli.pipelines.scene import SceneEvaluator, SceneSettings
 from sianms_cli.prepare.job import parse_shard, split_scenes
-from sianms_cli.processes import worker_pool
+from sianms_cli.processes import TASK_TORCH_THREADS, task_torch_threads, worker_pool
 from sianms_cli.progress import SILENT, Progress
 
 MARKER = "eval.json"
@@ -245,17 +245,13 @@ def write_scene(evaluator: SceneEvaluator, cache: Path, out: Path, token: str, n
 # --------------------------------------------------------------------------- workers
 
 _WORKER: tuple[SceneEvaluator, Path, Path] | None = None
-SCENE_TORCH_THREADS = 1
-"""Torch threads of the scenes stage, in a worker process and in this one alike: on some CPUs
-(AMD EPYC, measured) a matrix kernel sums in another order on another thread count, at some batch
-sizes, so the scenes' bytes would depend on ``--workers``; parallelism comes from the workers."""
 
 
 def _init_worker(config: EvalConfig, settings: SceneSettings, out: str) -> None:
     global _WORKER
     import torch
 
-    torch.set_num_threads(SCENE_TORCH_THREADS)
+    torch.set_num_threads(TASK_TORCH_THREADS)
     predictor, encoder, _ = load_models(config)
     db = NuScenesDB(config.dataroot, config.version)
     _WORKER = (SceneEvaluator(db, predictor, encoder, settings), Path(config.cache), Path(out))
@@ -271,15 +267,9 @@ def _run_in_worker(args: tuple[str, str]) -> tuple[str, str]:
 def _run_scenes(evaluator: SceneEvaluator, config: EvalConfig, settings: SceneSettings, out: Path,
                 todo: list[tuple[str, str]], workers: int) -> Iterator[tuple[str, str]]:
     if workers == 1 or len(todo) <= 1:
-        import torch
-
-        threads = torch.get_num_threads()
-        torch.set_num_threads(SCENE_TORCH_THREADS)
-        try:
+        with task_torch_threads():
             for token, name in todo:
                 yield name, write_scene(evaluator, Path(config.cache), out, token, name)
-        finally:
-            torch.set_num_threads(threads)
         return
     with worker_pool(min(workers, len(todo)), _init_worker, (config, settings, str(out))) as pool:
         yield from pool.imap_unordered(_run_in_worker, todo)

@@ -34,7 +34,7 @@ from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, c
 from sianms_cli.io import PARTIAL_SUFFIX, FolderBusyError, exclusive_lock, make_folder, release_lock, try_lock
 from sianms_cli.nuscenes.fingerprint import dataset_fingerprint
 from sianms_cli.nuscenes.tables import CAMERA_CHANNELS
-from sianms_cli.processes import worker_pool
+from sianms_cli.processes import TASK_TORCH_THREADS, task_torch_threads, worker_pool
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.rigs import sample_rigs
@@ -230,7 +230,7 @@ def _init_worker(config: PrepareConfig) -> None:
     global _WORKER
     import torch
 
-    torch.set_num_threads(1)
+    torch.set_num_threads(TASK_TORCH_THREADS)
     _WORKER = Preparer(config)
 
 
@@ -304,8 +304,9 @@ def _run_shards(preparer: Preparer, config: PrepareConfig, out: Path, todo: list
     """(shard, outcome) of each shard to do, in this process or in ``workers`` processes;
     ``samples`` counts each shard's samples for the progress of worker-written shards."""
     if workers == 1 or len(todo) <= 1:
-        for token, name in todo:
-            yield name, write_scene_shard(preparer, out, token, name, on_sample=progress.advance)
+        with task_torch_threads():
+            for token, name in todo:
+                yield name, write_scene_shard(preparer, out, token, name, on_sample=progress.advance)
         return
     with worker_pool(min(workers, len(todo)), _init_worker, (config,)) as pool:
         for name, outcome in pool.imap_unordered(_run_in_worker, [(str(out), t, s) for t, s in todo]):

@@ -144,6 +144,7 @@ def test_scenes_run_on_one_torch_thread_in_this_process_too(eval_inputs, tmp_pat
     would depend on --workers wherever a kernel sums in another order on more threads."""
     import torch
 
+    from sianms_cli import processes
     from sianms_cli.pipelines import job
 
     seen = []
@@ -151,7 +152,7 @@ def test_scenes_run_on_one_torch_thread_in_this_process_too(eval_inputs, tmp_pat
     monkeypatch.setattr(job, "write_scene", lambda *args: seen.append(torch.get_num_threads()) or write_scene(*args))
     torch.set_num_threads(2)
     run(config_of(eval_inputs, methods="vanilla", pictures=0), tmp_path / "one", workers=1)
-    assert seen and set(seen) == {job.SCENE_TORCH_THREADS}
+    assert seen and set(seen) == {processes.TASK_TORCH_THREADS}
     assert torch.get_num_threads() == 2
 
 
