@@ -45,6 +45,11 @@ def train_command(name: str) -> Callable[[Callable], Callable]:
     return command(name, train_app)
 
 
+def _follower() -> bool:
+    """A non-zero rank under torchrun: it trains but only rank 0 reports."""
+    return os.environ.get("RANK", "0") != "0"
+
+
 def _widths(text: str, flag: str) -> tuple[int, ...]:
     """'128,128' -> (128, 128); a malformed list is a user error naming the flag."""
     from sianms_cli.errors import SianmsError
@@ -114,7 +119,7 @@ def siamese_cli(
     from sianms_cli.training.siamese import SiameseConfig, parse_dims, run, sweep, sweep_markdown
 
     _use_threads(threads)
-    follower = os.environ.get("RANK", "0") != "0"  # under torchrun only rank 0 reports
+    follower = _follower()
     quiet = quiet or follower
     config = SiameseConfig(
         cache=str(cache), val_cache=None if val_cache is None else str(val_cache), dim=dim,
@@ -208,6 +213,8 @@ def fpointnet_cli(
     from sianms_cli.training.fpointnet import FPointNetConfig, run
 
     _use_threads(threads)
+    follower = _follower()
+    quiet = quiet or follower
     config = FPointNetConfig(
         cache=str(cache), val_cache=None if val_cache is None else str(val_cache),
         classes=tuple(name.strip() for name in classes.split(",") if name.strip()), num_points=num_points,
@@ -227,6 +234,8 @@ def fpointnet_cli(
 
     with ProgressBar(quiet) as bar:
         result = run(config, out, overwrite=overwrite, resume=resume, progress=bar, on_epoch=report_epoch)
+    if follower:
+        return
     metrics = result.history[-1] if result.history else {}
     if as_json:
         typer.echo(json.dumps(_json_value({

@@ -261,11 +261,12 @@ def _rotate_about_y(points: np.ndarray, center: np.ndarray, angle: np.ndarray) -
 
 def iterate_batches(cache: str | Path, selection: FrustumSelection, batch_size: int, rng: np.random.Generator,
                     train: bool, augmentation: Augmentation = Augmentation(),
-                    unions: str | Path | None = None) -> Iterator[dict[str, np.ndarray]]:
+                    unions: str | Path | None = None, ranks: int = 1) -> Iterator[dict[str, np.ndarray]]:
     """Batches of frustums, one shard in memory at a time.
 
     Training: shards and the frustums of each shard in random order, augmented; a final
-    partial batch is kept unless it holds a single frustum (batch norm needs two).
+    partial batch is kept unless it holds a single frustum (batch norm needs two) or, when
+    ``ranks`` processes share each batch (DDP), fewer frustums than ranks.
     Evaluation: cache order, no augmentation, every frustum.
 
     ``unions``: a folder of union-frustum shards (:func:`sianms_cli.data.multiview.build_union_shards`),
@@ -301,7 +302,7 @@ def iterate_batches(cache: str | Path, selection: FrustumSelection, batch_size: 
             while waiting >= batch_size:
                 batch, pending, waiting = _take(pending, batch_size)
                 yield _finish(batch, rng, train, augmentation)
-    if waiting >= (2 if train else 1):
+    if waiting >= (max(2, ranks) if train else 1):
         batch, _, _ = _take(pending, waiting)
         yield _finish(batch, rng, train, augmentation)
 

@@ -25,13 +25,16 @@ import math
 import torch
 from torch import nn
 
+from sianms_cli.models.global_batch import BatchShare, batch_norm, dropout, uniform
+
 NUM_HEADING_BINS = 12
 NUM_OBJECT_POINTS = 512
 BN_EPSILON = 1e-3  # TF batch_norm's default, which the original trained with (models.md §1.12)
 
 
 class PointLinear(nn.Module):
-    """Shared per-point linear -> batch norm -> ReLU on ``(B, N, C)`` (or FC on ``(B, C)``)."""
+    """Shared per-point linear -> batch norm -> ReLU on ``(B, N, C)`` (or FC on ``(B, C)``); the
+    batch norm is synchronised over the ranks of a distributed training (:mod:`~sianms_cli.models.global_batch`)."""
 
     def __init__(self, inputs: int, outputs: int) -> None:
         super().__init__()
@@ -41,7 +44,7 @@ class PointLinear(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         shape = x.shape
         y = self.linear(x.reshape(-1, shape[-1]))
-        return torch.relu(self.norm(y)).reshape(*shape[:-1], -1)
+        return torch.relu(batch_norm(self.norm, y)).reshape(*shape[:-1], -1)
 
 
 def _mlp(widths: list[int]) -> nn.Sequential:
@@ -86,14 +89,17 @@ class FPointNetV1(nn.Module):
             if isinstance(module, nn.BatchNorm1d):
                 module.momentum = momentum
 
-    def forward(self, points: torch.Tensor, one_hot: torch.Tensor,
-                generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
+    def forward(self, points: torch.Tensor, one_hot: torch.Tensor, generator: torch.Generator | None = None,
+                share: BatchShare | None = None) -> dict[str, torch.Tensor]:
         """Segment, mask, regress the box.
 
         Args:
             points: (B, N, C) frustum-frame points; xyz first.
             one_hot: (B, K) class vector.
             generator: random source of the masked-point gathering (None: torch's global one).
+            share: the rows of a global batch these frustums are, on one rank of a distributed
+                training: random draws are made for the global batch (dropout's from torch's
+                global generator) and these rows kept. None: the frustums are the batch.
 
         Returns:
             dict of ``seg_logits`` (B, N, 2), ``mask`` (B, N) bool, ``mask_mean`` (B, 3),
@@ -106,14 +112,15 @@ class FPointNetV1(nn.Module):
         one_hot = one_hot.to(points.dtype)
         point_feature = self.seg_point(points)
         global_feature = torch.cat([self.seg_global(point_feature).amax(dim=1), one_hot], dim=1)
-        point_head, dropout_and_logits = self.seg_head[0], self.seg_head[1:]
-        seg_logits = dropout_and_logits(point_head[1:](self._seg_head_first_layer(point_feature, global_feature)))
+        point_head, seg_dropout, seg_logits_layer = self.seg_head
+        seg_feature = point_head[1:](self._seg_head_first_layer(point_feature, global_feature))
+        seg_logits = seg_logits_layer(dropout(seg_feature, seg_dropout.p, share, self.training))
 
         mask = seg_logits[..., 1] > seg_logits[..., 0]
         xyz = points[..., :3]
         counts = mask.sum(dim=1, keepdim=True)
         mask_mean = (xyz * mask[..., None]).sum(dim=1) / counts.clamp(min=1)
-        object_xyz = gather_object_points(xyz - mask_mean[:, None, :], mask, self.num_object_points, generator)
+        object_xyz = gather_object_points(xyz - mask_mean[:, None, :], mask, self.num_object_points, generator, share)
 
         center_delta = self.tnet_head(torch.cat([self.tnet_point(object_xyz).amax(dim=1), one_hot], dim=1))
         stage1_center = mask_mean + center_delta
@@ -136,7 +143,7 @@ class FPointNetV1(nn.Module):
         per_point = point_feature @ weight[:, :local].T
         per_frustum = torch.addmm(layer.linear.bias, global_feature, weight[:, local:].T)
         y = per_point + per_frustum[:, None, :]
-        return torch.relu(layer.norm(y.reshape(-1, y.shape[-1]))).reshape(*y.shape)
+        return torch.relu(batch_norm(layer.norm, y.reshape(-1, y.shape[-1]))).reshape(*y.shape)
 
     def parse_box_output(self, box: torch.Tensor, stage1_center: torch.Tensor) -> dict[str, torch.Tensor]:
         """Split the box net's ``3 + 2 NH + 4 NS`` outputs in the original's order (models.md §1.7)."""
@@ -155,21 +162,21 @@ class FPointNetV1(nn.Module):
 
 
 def gather_object_points(xyz: torch.Tensor, mask: torch.Tensor, count: int,
-                         generator: torch.Generator | None = None) -> torch.Tensor:
+                         generator: torch.Generator | None = None, share: BatchShare | None = None) -> torch.Tensor:
     """(B, count, 3): ``count`` of each frustum's masked points, as the original's masking.
 
     More masked points than ``count``: a random subset without replacement; fewer: all of
     them plus random repeats; none: ``count`` copies of point 0 (models.md §1.5). Done for the
     whole batch at once: sorting by ``mask + uniform`` puts each frustum's masked points first,
     in random order. The original also shuffles the result; the max-pools that follow make
-    the order irrelevant, so it is not shuffled here.
+    the order irrelevant, so it is not shuffled here. ``share``: as :meth:`FPointNetV1.forward`'s.
     """
     batch, points = mask.shape
-    keys = mask.to(xyz.dtype) + torch.rand(batch, points, generator=generator, device=xyz.device, dtype=xyz.dtype)
+    keys = mask.to(xyz.dtype) + uniform(batch, points, share, generator=generator, device=xyz.device, dtype=xyz.dtype)
     order = keys.argsort(dim=1, descending=True)
     masked = mask.sum(dim=1, keepdim=True)
     slot = torch.arange(count, device=xyz.device)[None, :].expand(batch, -1)
-    repeat = (torch.rand(batch, count, generator=generator, device=xyz.device) * masked).long()
+    repeat = (uniform(batch, count, share, generator=generator, device=xyz.device) * masked).long()
     slot = torch.where(slot < masked, slot, repeat)
     index = torch.gather(order, 1, slot.clamp(max=points - 1))
     index = torch.where(masked > 0, index, torch.zeros_like(index))

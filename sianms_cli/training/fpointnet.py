@@ -25,6 +25,13 @@ Validation stays on the validation cache's single frustums. metrics.csv counts t
 trained per epoch (``train_count``) and the union frustums among them (``train_union_count``).
 Computing a union costs more than training on it (LiDAR reads, every point of the sample
 projected into both cameras; figures in :mod:`sianms_cli.data.multiview`), hence once per run.
+
+Scale: under ``torchrun --nproc-per-node K -m sianms_cli train fpointnet ...`` every rank
+draws the same global batches and trains its rows of each with DistributedDataParallel; the
+random draws and the batch-norm statistics are those of the global batch
+(:mod:`sianms_cli.models.global_batch`) and each rank's loss is weighted by its share, so K
+processes compute what one process computes with the same batch, up to rounding. Rank 0
+builds the union frustums (the others wait, then read them), validates and writes the run.
 """
 
 from __future__ import annotations
@@ -39,11 +46,12 @@ import torch
 
 from sianms_cli.data.cache import complete_manifest
 from sianms_cli.data.frustum_dataset import Augmentation, FrustumSelection, class_statistics, iterate_batches
-from sianms_cli.data.multiview import build_union_shards, multiview_settings
+from sianms_cli.data.multiview import MultiviewSettings, build_union_shards, multiview_settings
 from sianms_cli.errors import SianmsError, check_seed
 from sianms_cli.geometry.iou3d import box_iou3d
 from sianms_cli.models.fpointnet import NUM_HEADING_BINS, FPointNetV1
 from sianms_cli.models.fpointnet_losses import decode_boxes, fpointnet_loss
+from sianms_cli.models.global_batch import BatchShare
 from sianms_cli.nuscenes.classes import PAPER_CLASSES
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.training.run import (
@@ -51,6 +59,8 @@ from sianms_cli.training.run import (
     RunFolder,
     choose_device,
     epoch_generator,
+    finish_distributed,
+    init_distributed,
     load_state,
     plain,
     seed_everything,
@@ -207,33 +217,46 @@ def predict(model: FPointNetV1, tensors: dict[str, torch.Tensor],
     return {**outputs, **{f"box_{key}": value for key, value in boxes.items()}, "score": box_scores(outputs)}
 
 
-def train_epoch(model: FPointNetV1, optimizer: torch.optim.Optimizer, config: FPointNetConfig,
+def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config: FPointNetConfig,
                 rng: np.random.Generator, generator: torch.Generator, samples: int, device: torch.device,
-                progress: Progress, unions: Path | None = None) -> tuple[dict[str, float], int]:
+                progress: Progress, unions: Path | None = None, rank: int = 0,
+                world: int = 1) -> tuple[dict[str, float], int]:
     """One pass over the training cache (and the union frustums in ``unions``, a folder of
     :func:`~sianms_cli.data.multiview.build_union_shards`); (mean loss terms weighted by batch
-    size plus the frustum counts, samples seen after)."""
+    size plus the frustum counts, samples seen after).
+
+    ``model`` is the network or, with ``world`` > 1 ranks, its DistributedDataParallel
+    wrapper: every rank draws the same global batches (``rng`` and ``generator`` do not
+    depend on the rank) and trains on its rows of each (module docstring).
+    """
+    network: FPointNetV1 = model.module if world > 1 else model
     model.train()
     sums = dict.fromkeys(LOSS_TERMS, 0.0)
     seen = union_seen = 0
     for batch in iterate_batches(config.cache, config.selection, config.batch_size, rng, True, config.augmentation,
-                                 unions=unions):
+                                 unions=unions, ranks=world):
         lr, momentum = schedule(config, samples)
         set_learning_rate(optimizer, lr)
-        model.set_bn_momentum(momentum)
-        tensors = to_tensors(batch, len(config.classes), device)
-        outputs = model(tensors["points"], tensors["one_hot"], generator=generator)
-        losses = fpointnet_loss(outputs, tensors, model.mean_sizes, config.box_weight, config.corner_weight)
-        optimizer.zero_grad(set_to_none=True)
-        losses["total"].backward()
-        optimizer.step()
+        network.set_bn_momentum(momentum)
         size = len(batch["center"])
+        share = BatchShare.of_rank(size, rank, world)
+        tensors = to_tensors({key: value[share.start:share.stop] for key, value in batch.items()},
+                             len(config.classes), device)
+        outputs = model(tensors["points"], tensors["one_hot"], generator=generator, share=share)
+        losses = fpointnet_loss(outputs, tensors, network.mean_sizes, config.box_weight, config.corner_weight)
+        optimizer.zero_grad(set_to_none=True)
+        (losses["total"] * share.loss_weight(world)).backward()
+        optimizer.step()
         for term in LOSS_TERMS:
-            sums[term] += losses[term].item() * size
+            sums[term] += losses[term].item() * len(share)
         seen += size
         union_seen += int(batch["union"].sum())
         samples += size
         progress.advance(size)
+    if world > 1:
+        summed = torch.tensor([sums[term] for term in LOSS_TERMS], dtype=torch.float64)
+        torch.distributed.all_reduce(summed)
+        sums = dict(zip(LOSS_TERMS, summed.tolist()))
     figures = {f"train_{term}": value / max(seen, 1) for term, value in sums.items()}
     return {**figures, "train_count": seen, "train_union_count": union_seen}, samples
 
@@ -278,6 +301,19 @@ def _figures(prefix: str, rows: dict[str, np.ndarray], keep: np.ndarray) -> dict
     return figures
 
 
+def build_shared_unions(config: FPointNetConfig, folder: Path, settings: MultiviewSettings, progress: Progress,
+                        rank: int, world: int) -> dict[str, int]:
+    """The run's union frustums (:func:`~sianms_cli.data.multiview.build_union_shards`): rank 0
+    builds them; the other ranks wait for it, then find every shard done and only count them."""
+    if rank == 0:
+        counts = build_union_shards(config.cache, folder, config.selection, settings, progress)
+    if world > 1:
+        torch.distributed.barrier()
+    if rank != 0:
+        counts = build_union_shards(config.cache, folder, config.selection, settings, progress)
+    return counts
+
+
 def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, resume: bool = False,
         progress: Progress = SILENT, on_epoch: Callable[[dict[str, Any]], None] | None = None) -> FPointNetResult:
     """Train Frustum PointNets v1 on ``config.cache`` into the run folder ``out``.
@@ -294,15 +330,17 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
         if cache is not None:
             complete_manifest(cache)
     counts, mean_sizes = size_clusters(config)
-    device = choose_device(config.device)
+    rank, world, device = init_distributed(choose_device(config.device))
+    if config.batch_size < world:
+        raise SianmsError(f"--batch-size {config.batch_size} is smaller than the {world} processes sharing each batch")
     union_settings = multiview_settings(config.cache, config.dataroot, config.max_distance) if config.multiview else None
     folder = RunFolder.open(out, kind="fpointnet", config=plain(asdict(config)), overwrite=overwrite,
-                            resume=resume, may_differ=("epochs", "device", "dataroot"))
+                            resume=resume, may_differ=("epochs", "device", "dataroot"), write=rank == 0)
     with folder:
         unions, union_counts = None, {}
         if union_settings is not None:  # once per run: a resumed run finds them done (their key matches)
             unions = folder.path / MULTIVIEW_FOLDER
-            union_counts = build_union_shards(config.cache, unions, config.selection, union_settings, progress)
+            union_counts = build_shared_unions(config, unions, union_settings, progress, rank, world)
         seed_everything(config.seed)
         model = FPointNetV1(torch.as_tensor(mean_sizes), 4 if config.intensity else 3,
                             num_object_points=config.num_object_points).to(device)
@@ -314,6 +352,7 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
             optimizer.load_state_dict(folder.resumed.optimizer)
             start, history = folder.resumed.epoch, list(folder.resumed.history)
             samples = int(folder.resumed.extra["samples"])
+        trained = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
         for epoch in range(start, config.epochs):
             rng = epoch_generator(config.seed, epoch)
             torch.manual_seed(int(rng.integers(2**62)))  # dropout
@@ -321,13 +360,13 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
             progress.start(int(counts.sum()) + sum(union_counts.values()), "frustum",
                            f"epoch {epoch + 1}/{config.epochs}")
             row: dict[str, Any] = {"epoch": epoch + 1, "lr": schedule(config, samples)[0]}
-            losses, samples = train_epoch(model, optimizer, config, rng, generator, samples, device, progress,
-                                          unions)
+            losses, samples = train_epoch(trained, optimizer, config, rng, generator, samples, device, progress,
+                                          unions, rank, world)
             row.update(losses)
-            if config.val_cache is not None:
+            if config.val_cache is not None and rank == 0:
                 row.update(validate(model, config, rng, generator, device))
             history.append(row)
-            if on_epoch is not None:
+            if on_epoch is not None and rank == 0:
                 on_epoch(row)
             folder.save(Checkpoint(kind="fpointnet", config=folder.config, epoch=epoch + 1, model=model.state_dict(),
                                    optimizer=optimizer.state_dict(), history=history,
@@ -336,4 +375,5 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
                                           "train_union_frustums": sum(union_counts.values()),
                                           "num_heading_bins": NUM_HEADING_BINS}),
                         curves=(epoch + 1) % CURVES_EVERY == 0 or epoch + 1 == config.epochs)
+    finish_distributed(world)
     return FPointNetResult(Path(out), history, mean_sizes, start, sum(p.numel() for p in model.parameters()))

@@ -61,6 +61,7 @@ from sianms_cli.data.siamese import PairingBatch, Scene, cache_feature_shape, ep
     hardest_candidates, iter_scenes
 from sianms_cli.errors import DataFormatError, SianmsError, check_seed
 from sianms_cli.io import make_folder, write_json, write_text
+from sianms_cli.models.global_batch import BatchShare
 from sianms_cli.models.losses import double_margin_loss, pair_distances, positive_terms
 from sianms_cli.models.siamese import SiameseEncoder, parameter_count
 from sianms_cli.progress import SILENT, Progress
@@ -178,11 +179,6 @@ def train_step(model: torch.nn.Module, optimizer: torch.optim.Optimizer, batch: 
             "items": k, "fallback": int(batch.fallback.sum()), "candidates": len(batch.candidate_item)}
 
 
-def rank_share(size: int, rank: int, world: int) -> tuple[int, int]:
-    """[start, stop) of rank ``rank``'s items in a global batch of ``size`` (contiguous, sizes differ by <= 1)."""
-    return size * rank // world, size * (rank + 1) // world
-
-
 def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config: SiameseConfig,
                 device: torch.device, epoch: int, rank: int = 0, world: int = 1) -> dict[str, float]:
     """One epoch over the training cache; the mean per reference of eq. (6) and its two terms.
@@ -194,7 +190,8 @@ def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config
     names = ("loss", "positive", "negative", "items", "fallback", "candidates")
     totals = dict.fromkeys(names, 0.0)
     for batch in epoch_batches(config.cache, config.batch_size, epoch_generator(config.seed, epoch)):
-        share = batch.take(*rank_share(len(batch), rank, world)) if world > 1 else batch
+        rows = BatchShare.of_rank(len(batch), rank, world)
+        share = batch.take(rows.start, rows.stop) if world > 1 else batch
         for key, value in train_step(model, optimizer, share, config, device, world).items():
             totals[key] += value
     if world > 1:

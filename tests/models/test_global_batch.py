@@ -1,0 +1,39 @@
+"""A rank's share of a global batch draws what one process draws for those rows."""
+
+import torch
+
+from sianms_cli.models.global_batch import BatchShare, batch_norm, dropout, uniform
+
+
+def test_shares_cover_the_batch_in_order_and_weigh_the_loss_to_its_mean():
+    shares = [BatchShare.of_rank(7, rank, 3) for rank in range(3)]
+    assert [(s.start, s.stop) for s in shares] == [(0, 2), (2, 4), (4, 7)]
+    assert sum(s.loss_weight(3) for s in shares) / 3 == 1.0  # DDP averages the ranks' gradients
+    assert BatchShare.of_rank(5, 0, 1).loss_weight(1) == 1.0
+
+
+def test_a_shares_uniform_draws_are_its_rows_of_the_global_draw():
+    whole = uniform(7, 5, None, generator=torch.Generator().manual_seed(1))
+    share = BatchShare.of_rank(7, 1, 2)
+    part = uniform(len(share), 5, share, generator=torch.Generator().manual_seed(1))
+    assert torch.equal(part, whole[share.start:share.stop])
+
+
+def test_dropout_is_torchs_and_a_share_masks_its_rows_of_the_global_mask():
+    x = torch.rand(6, 10, 8) + 1
+    torch.manual_seed(4)
+    expected = torch.nn.functional.dropout(x, 0.5, training=True)
+    torch.manual_seed(4)
+    assert torch.equal(dropout(x, 0.5, None, training=True), expected)
+    share = BatchShare.of_rank(6, 1, 2)
+    torch.manual_seed(4)
+    assert torch.equal(dropout(x[share.start:share.stop], 0.5, share, training=True), expected[3:])
+    assert dropout(x, 0.5, None, training=False) is x
+
+
+def test_batch_norm_without_a_process_group_is_the_module_itself():
+    norm = torch.nn.BatchNorm1d(4).train()
+    twin = torch.nn.BatchNorm1d(4).train()
+    x = torch.randn(9, 4)
+    assert torch.equal(batch_norm(norm, x), twin(x))
+    assert torch.equal(norm.running_var, twin.running_var)
