@@ -26,6 +26,9 @@ OUT = typer.Option(..., help="Run folder: checkpoint.pt, config.json, metrics.cs
 SEED = typer.Option(0, help="Seed of every random source (same seed, same weights on a CPU).")
 DEVICE = typer.Option("auto", help="auto (CUDA, then CPU), cpu, cuda or cuda:N.")
 THREADS = typer.Option(None, min=1, help="CPU threads for torch [default: torch's choice].")
+STREAMS = typer.Option(None, help="Training data streams, each reading its own shards; under torchrun each process "
+                                  "runs streams/processes of them. One process with --streams K trains what K "
+                                  "processes train [default: one per process].")
 RESUME = typer.Option(False, "--resume", help="Continue the run at --out from its last checkpoint.")
 OVERWRITE = typer.Option(False, "--overwrite", help="Replace the run at --out.")
 QUIET = typer.Option(False, "--quiet", help="No progress bar, no per-epoch lines.")
@@ -108,6 +111,7 @@ def siamese_cli(
     seed: int = SEED,
     device: str = DEVICE,
     threads: Optional[int] = THREADS,
+    streams: Optional[int] = STREAMS,
     sweep_dims: Optional[str] = typer.Option(None, help="Train one model per d (e.g. 5,10,20,50,100,200,500,1000) "
                                                          "into --out/d<d>/ and tabulate them in sweep.md/json."),
     resume: bool = RESUME,
@@ -125,7 +129,7 @@ def siamese_cli(
         cache=str(cache), val_cache=None if val_cache is None else str(val_cache), dim=dim,
         conv_channels=_widths(conv_channels, "--conv-channels"), hidden=_widths(hidden, "--hidden"),
         alpha=alpha, beta=beta, lr=lr, lr_decay=lr_decay, lr_step=lr_step, epochs=epochs, batch_size=batch_size,
-        seed=seed, device=device, standardize=standardize)
+        seed=seed, device=device, standardize=standardize, streams=streams)
 
     def report_epoch(row: dict[str, Any]) -> None:
         if quiet:
@@ -203,6 +207,7 @@ def fpointnet_cli(
     seed: int = SEED,
     device: str = DEVICE,
     threads: Optional[int] = THREADS,
+    streams: Optional[int] = STREAMS,
     resume: bool = RESUME,
     overwrite: bool = OVERWRITE,
     quiet: bool = QUIET,
@@ -221,7 +226,8 @@ def fpointnet_cli(
         num_object_points=num_object_points, min_box_height=min_box_height, intensity=intensity, flip=flip,
         shift=shift, jitter=jitter, epochs=epochs, batch_size=batch_size, lr=lr, decay_step=decay_step,
         decay_rate=decay_rate, box_weight=box_weight, corner_weight=corner_weight, multiview=multiview,
-        dataroot=None if dataroot is None else str(dataroot), max_distance=max_distance, seed=seed, device=device)
+        dataroot=None if dataroot is None else str(dataroot), max_distance=max_distance, seed=seed, device=device,
+        streams=streams)
 
     def report_epoch(row: dict[str, Any]) -> None:
         if quiet:

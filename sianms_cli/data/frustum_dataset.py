@@ -261,13 +261,16 @@ def _rotate_about_y(points: np.ndarray, center: np.ndarray, angle: np.ndarray) -
 
 def iterate_batches(cache: str | Path, selection: FrustumSelection, batch_size: int, rng: np.random.Generator,
                     train: bool, augmentation: Augmentation = Augmentation(),
-                    unions: str | Path | None = None, ranks: int = 1) -> Iterator[dict[str, np.ndarray]]:
+                    unions: str | Path | None = None,
+                    shards: np.ndarray | None = None) -> Iterator[dict[str, np.ndarray]]:
     """Batches of frustums, one shard in memory at a time.
 
     Training: shards and the frustums of each shard in random order, augmented; a final
-    partial batch is kept unless it holds a single frustum (batch norm needs two) or, when
-    ``ranks`` processes share each batch (DDP), fewer frustums than ranks.
+    partial batch is kept unless it holds a single frustum (batch norm needs two).
     Evaluation: cache order, no augmentation, every frustum.
+
+    ``shards``: the indices of the shards to read, in order (a stream's,
+    :mod:`sianms_cli.data.streams`); None: every shard, in a random order when training.
 
     ``unions``: a folder of union-frustum shards (:func:`sianms_cli.data.multiview.build_union_shards`),
     one per cache shard under the same name; each shard's union frustums join its single ones
@@ -278,8 +281,10 @@ def iterate_batches(cache: str | Path, selection: FrustumSelection, batch_size: 
     ``detection_id`` (B,), ``union`` (B,) bool.
     """
     paths = frustum_shards(cache)
-    if train:
-        paths = [paths[i] for i in rng.permutation(len(paths))]
+    if shards is None and train:
+        shards = rng.permutation(len(paths))
+    if shards is not None:
+        paths = [paths[i] for i in shards]
     pending: list[dict[str, np.ndarray]] = []
     waiting = 0
     for path in paths:
@@ -302,14 +307,31 @@ def iterate_batches(cache: str | Path, selection: FrustumSelection, batch_size: 
             while waiting >= batch_size:
                 batch, pending, waiting = _take(pending, batch_size)
                 yield _finish(batch, rng, train, augmentation)
-    if waiting >= (max(2, ranks) if train else 1):
+    if waiting >= (2 if train else 1):
         batch, _, _ = _take(pending, waiting)
         yield _finish(batch, rng, train, augmentation)
 
 
+def concatenate_batches(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """The frustums of several batches one after the other (at least one part)."""
+    if len(parts) == 1:
+        return parts[0]
+    return {key: np.concatenate([part[key] for part in parts]) for key in parts[0]}
+
+
+def empty_batch(selection: FrustumSelection) -> dict[str, np.ndarray]:
+    """A batch of no frustums, with :func:`iterate_batches`'s keys, dtypes and trailing shapes."""
+    channels = 4 if selection.intensity else 3
+    return {"points": np.zeros((0, selection.num_points, channels), dtype=np.float32),
+            "seg": np.zeros((0, selection.num_points), dtype=np.int64), "center": np.zeros((0, 3)),
+            "heading": np.zeros(0), "lwh": np.zeros((0, 3)), "class_index": np.zeros(0, dtype=np.int64),
+            "score": np.zeros(0, dtype=np.float32), "rot_angle": np.zeros(0),
+            "detection_id": np.zeros(0, dtype=object), "union": np.zeros(0, dtype=bool)}
+
+
 def _take(pending: list[dict[str, np.ndarray]], size: int) -> tuple[dict[str, np.ndarray], list, int]:
     """The first ``size`` frustums of the pending pieces, and what is left."""
-    joined = {key: np.concatenate([piece[key] for piece in pending]) for key in pending[0]}
+    joined = concatenate_batches(pending)
     batch = {key: value[:size] for key, value in joined.items()}
     rest = {key: value[size:] for key, value in joined.items()}
     left = len(rest["center"])

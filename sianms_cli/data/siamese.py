@@ -253,6 +253,14 @@ class PairingBatch:
     def __len__(self) -> int:
         return len(self.reference)
 
+    @staticmethod
+    def empty(feature_shape: tuple[int, int, int]) -> PairingBatch:
+        """A batch of no items, for ROI features of ``feature_shape`` (C, PH, PW)."""
+        features = np.zeros((0, *feature_shape), dtype=np.float16)
+        rows, names = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=object)
+        return PairingBatch(features, features, features, rows, np.zeros(0, dtype=bool), names, names, names, names,
+                            names, names)
+
     def take(self, start: int, stop: int) -> PairingBatch:
         """Items [start, stop) with their candidates."""
         lo, hi = np.searchsorted(self.candidate_item, [start, stop])
@@ -301,15 +309,17 @@ def draw_scene_items(scene: Scene, rng: np.random.Generator) -> PairingBatch | N
         np.full(len(chosen), scene.scene_token, dtype=object))
 
 
-def epoch_batches(cache: str | Path, batch_size: int, rng: np.random.Generator) -> Iterator[PairingBatch]:
+def epoch_batches(cache: str | Path, batch_size: int, rng: np.random.Generator,
+                  shards: np.ndarray | None = None) -> Iterator[PairingBatch]:
     """The epoch's batches of ``batch_size`` reference items (the last may be smaller).
 
-    Scenes are visited in a random order, one loaded at a time; a batch may join the end of
-    one scene with the start of the next.
+    Scenes are visited in a random order (or the shard indices ``shards``, in order: a
+    stream's, :mod:`sianms_cli.data.streams`), one loaded at a time; a batch may join the end
+    of one scene with the start of the next.
     """
     pending: list[PairingBatch] = []
     count = 0
-    for scene in iter_scenes(cache, order=rng.permutation(len(shard_paths(cache)))):
+    for scene in iter_scenes(cache, order=rng.permutation(len(shard_paths(cache))) if shards is None else shards):
         items = draw_scene_items(scene, rng)
         if items is None:
             continue

@@ -44,7 +44,7 @@ class PointLinear(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         shape = x.shape
         y = self.linear(x.reshape(-1, shape[-1]))
-        return torch.relu(batch_norm(self.norm, y)).reshape(*shape[:-1], -1)
+        return torch.relu(batch_norm(self.norm, y)).reshape(*shape[:-1], y.shape[-1])
 
 
 def _mlp(widths: list[int]) -> nn.Sequential:

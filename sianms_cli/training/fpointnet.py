@@ -26,18 +26,20 @@ trained per epoch (``train_count``) and the union frustums among them (``train_u
 Computing a union costs more than training on it (LiDAR reads, every point of the sample
 projected into both cameras; figures in :mod:`sianms_cli.data.multiview`), hence once per run.
 
-Scale: under ``torchrun --nproc-per-node K -m sianms_cli train fpointnet ...`` every rank
-draws the same global batches and trains its rows of each with DistributedDataParallel; the
-random draws and the batch-norm statistics are those of the global batch
-(:mod:`sianms_cli.models.global_batch`) and each rank's loss is weighted by its share, so K
-processes compute what one process computes with the same batch, up to rounding. Rank 0
-builds the union frustums (the others wait, then read them), validates and writes the run.
+Scale: under ``torchrun --nproc-per-node K -m sianms_cli train fpointnet ...`` the training
+frustums are read in ``streams`` streams (default: one per process), each rank reading only
+its streams' shards (:mod:`sianms_cli.data.streams`), and each rank trains its rows of every
+global batch with DistributedDataParallel; the model's random draws and batch-norm
+statistics are those of the global batch (:mod:`sianms_cli.models.global_batch`) and each
+rank's loss is weighted by its share, so K processes compute what one process with the same
+streams computes, up to rounding. Rank 0 builds the union frustums (the others wait, then
+read them), validates and writes the run.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -45,8 +47,10 @@ import numpy as np
 import torch
 
 from sianms_cli.data.cache import complete_manifest
-from sianms_cli.data.frustum_dataset import Augmentation, FrustumSelection, class_statistics, iterate_batches
+from sianms_cli.data.frustum_dataset import Augmentation, FrustumSelection, class_statistics, concatenate_batches, \
+    empty_batch, frustum_shards, iterate_batches
 from sianms_cli.data.multiview import MultiviewSettings, build_union_shards, multiview_settings
+from sianms_cli.data.streams import check_streams, deal_shards, rank_streams, stream_batch_size, stream_steps
 from sianms_cli.errors import SianmsError, check_seed
 from sianms_cli.geometry.iou3d import box_iou3d
 from sianms_cli.models.fpointnet import NUM_HEADING_BINS, FPointNetV1
@@ -63,8 +67,10 @@ from sianms_cli.training.run import (
     init_distributed,
     load_state,
     plain,
+    row_counts,
     seed_everything,
     set_learning_rate,
+    sum_over_ranks,
 )
 
 # Size clusters for a class without a training frustum: the nuScenes means (l, w, h) MM3D uses
@@ -112,6 +118,7 @@ class FPointNetConfig:
     max_distance: float = 50.0  # metres: multi-frustum circle radius, nuScenes' car detection range
     seed: int = 0
     device: str = "auto"
+    streams: int | None = None  # data streams (sianms_cli.data.streams); None: one per process
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "classes", tuple(self.classes))
@@ -217,7 +224,7 @@ def predict(model: FPointNetV1, tensors: dict[str, torch.Tensor],
     return {**outputs, **{f"box_{key}": value for key, value in boxes.items()}, "score": box_scores(outputs)}
 
 
-def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config: FPointNetConfig,
+def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config: FPointNetConfig, epoch: int,
                 rng: np.random.Generator, generator: torch.Generator, samples: int, device: torch.device,
                 progress: Progress, unions: Path | None = None, rank: int = 0,
                 world: int = 1) -> tuple[dict[str, float], int]:
@@ -225,40 +232,47 @@ def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config
     :func:`~sianms_cli.data.multiview.build_union_shards`); (mean loss terms weighted by batch
     size plus the frustum counts, samples seen after).
 
+    ``rng`` is the epoch's generator: it deals the shards to ``config.streams`` streams and
+    draws stream 0's batches; stream s > 0 draws from ``epoch_generator(seed, epoch, s)``.
     ``model`` is the network or, with ``world`` > 1 ranks, its DistributedDataParallel
-    wrapper: every rank draws the same global batches (``rng`` and ``generator`` do not
-    depend on the rank) and trains on its rows of each (module docstring).
+    wrapper; each rank reads its streams and trains on its rows of every global batch
+    (module docstring). A rank whose streams have run out still takes part in each step,
+    with no rows and a zero loss, until every rank's have.
     """
     network: FPointNetV1 = model.module if world > 1 else model
     model.train()
+    orders = deal_shards(len(frustum_shards(config.cache)), rng, config.streams)
+    streams = [iterate_batches(config.cache, config.selection, stream_batch_size(config.batch_size, s, config.streams),
+                               rng if s == 0 else epoch_generator(config.seed, epoch, s), True, config.augmentation,
+                               unions=unions, shards=orders[s])
+               for s in rank_streams(config.streams, rank, world)]
     sums = dict.fromkeys(LOSS_TERMS, 0.0)
     seen = union_seen = 0
-    for batch in iterate_batches(config.cache, config.selection, config.batch_size, rng, True, config.augmentation,
-                                 unions=unions, ranks=world):
+    for batch, counts in stream_steps(streams, concatenate_batches, empty_batch(config.selection),
+                                      lambda rows: len(rows["center"]),
+                                      lambda count: row_counts(count, rank, world, device)):
+        share = BatchShare.of_counts(counts, rank)
         lr, momentum = schedule(config, samples)
         set_learning_rate(optimizer, lr)
         network.set_bn_momentum(momentum)
-        size = len(batch["center"])
-        share = BatchShare.of_rank(size, rank, world)
-        tensors = to_tensors({key: value[share.start:share.stop] for key, value in batch.items()},
-                             len(config.classes), device)
+        tensors = to_tensors(batch, len(config.classes), device)
         outputs = model(tensors["points"], tensors["one_hot"], generator=generator, share=share)
-        losses = fpointnet_loss(outputs, tensors, network.mean_sizes, config.box_weight, config.corner_weight)
         optimizer.zero_grad(set_to_none=True)
-        (losses["total"] * share.loss_weight(world)).backward()
+        if len(share):
+            losses = fpointnet_loss(outputs, tensors, network.mean_sizes, config.box_weight, config.corner_weight)
+            (losses["total"] * share.loss_weight(world)).backward()
+            for term in LOSS_TERMS:
+                sums[term] += losses[term].item() * len(share)
+        else:  # no rows here: the backward pass's collectives still need this rank, with zero gradients
+            sum(value.sum() for value in outputs.values() if value.requires_grad).mul(0.0).backward()
         optimizer.step()
-        for term in LOSS_TERMS:
-            sums[term] += losses[term].item() * len(share)
-        seen += size
+        seen += share.size
         union_seen += int(batch["union"].sum())
-        samples += size
-        progress.advance(size)
-    if world > 1:
-        summed = torch.tensor([sums[term] for term in LOSS_TERMS], dtype=torch.float64)
-        torch.distributed.all_reduce(summed)
-        sums = dict(zip(LOSS_TERMS, summed.tolist()))
-    figures = {f"train_{term}": value / max(seen, 1) for term, value in sums.items()}
-    return {**figures, "train_count": seen, "train_union_count": union_seen}, samples
+        samples += share.size
+        progress.advance(share.size)
+    *totals, union_seen = sum_over_ranks([*(sums[term] for term in LOSS_TERMS), union_seen], device, world)
+    figures = {f"train_{term}": value / max(seen, 1) for term, value in zip(LOSS_TERMS, totals)}
+    return {**figures, "train_count": seen, "train_union_count": int(union_seen)}, samples
 
 
 @torch.no_grad()
@@ -331,9 +345,10 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
             complete_manifest(cache)
     counts, mean_sizes = size_clusters(config)
     rank, world, device = init_distributed(choose_device(config.device))
-    if config.batch_size < world:
-        raise SianmsError(f"--batch-size {config.batch_size} is smaller than the {world} processes sharing each batch")
-    union_settings = multiview_settings(config.cache, config.dataroot, config.max_distance) if config.multiview else None
+    config = replace(config, streams=config.streams or world)
+    check_streams(config.streams, world, config.batch_size, smallest=2)  # batch norm: two frustums per stream
+    union_settings = (multiview_settings(config.cache, config.dataroot, config.max_distance) if config.multiview
+                      else None)
     folder = RunFolder.open(out, kind="fpointnet", config=plain(asdict(config)), overwrite=overwrite,
                             resume=resume, may_differ=("epochs", "device", "dataroot"), write=rank == 0)
     with folder:
@@ -360,8 +375,8 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
             progress.start(int(counts.sum()) + sum(union_counts.values()), "frustum",
                            f"epoch {epoch + 1}/{config.epochs}")
             row: dict[str, Any] = {"epoch": epoch + 1, "lr": schedule(config, samples)[0]}
-            losses, samples = train_epoch(trained, optimizer, config, rng, generator, samples, device, progress,
-                                          unions, rank, world)
+            losses, samples = train_epoch(trained, optimizer, config, epoch, rng, generator, samples, device,
+                                          progress, unions, rank, world)
             row.update(losses)
             if config.val_cache is not None and rank == 0:
                 row.update(validate(model, config, rng, generator, device))

