@@ -20,11 +20,6 @@ TINY = dict(num_points=64, num_object_points=32, batch_size=8, min_box_height=0,
 
 
 @pytest.fixture(scope="module")
-def cache(tiny_caches):
-    return tiny_caches[0]
-
-
-@pytest.fixture(scope="module")
 def trained(tiny_caches, tmp_path_factory):
     config = FPointNetConfig(cache=str(tiny_caches[0]), val_cache=str(tiny_caches[1]), epochs=12, lr=3e-4, **TINY)
     out = tmp_path_factory.mktemp("fpointnet") / "run"
@@ -66,9 +61,10 @@ def test_size_clusters_are_the_training_means_in_lwh_order(trained):
     assert car[0] > car[1]  # length before width: the (w, l, h) order was converted
 
 
-def test_resume_ends_where_an_uninterrupted_run_ends(cache, tmp_path):
-    short = FPointNetConfig(cache=str(cache), epochs=1, **TINY)
-    full = FPointNetConfig(cache=str(cache), epochs=2, **TINY)
+@pytest.mark.parametrize("streams", [1, 2])
+def test_resume_ends_where_an_uninterrupted_run_ends(streams, two_shard_cache, tmp_path):
+    short = FPointNetConfig(cache=str(two_shard_cache), epochs=1, streams=streams, **TINY)
+    full = FPointNetConfig(cache=str(two_shard_cache), epochs=2, streams=streams, **TINY)
     run(full, tmp_path / "straight")
     run(short, tmp_path / "stopped")
     resumed = run(full, tmp_path / "stopped", resume=True)
