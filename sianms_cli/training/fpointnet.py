@@ -39,6 +39,7 @@ read them), validates and writes the run.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Callable
@@ -375,11 +376,13 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
             progress.start(int(counts.sum()) + sum(union_counts.values()), "frustum",
                            f"epoch {epoch + 1}/{config.epochs}")
             row: dict[str, Any] = {"epoch": epoch + 1, "lr": schedule(config, samples)[0]}
+            began = time.perf_counter()
             losses, samples = train_epoch(trained, optimizer, config, epoch, rng, generator, samples, device,
                                           progress, unions, rank, world)
-            row.update(losses)
+            row.update(losses, train_seconds=time.perf_counter() - began)
             if config.val_cache is not None and rank == 0:
                 row.update(validate(model, config, rng, generator, device))
+            row["seconds"] = time.perf_counter() - began
             history.append(row)
             if on_epoch is not None and rank == 0:
                 on_epoch(row)

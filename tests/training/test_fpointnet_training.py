@@ -127,7 +127,11 @@ def test_multiview_resume_ends_where_an_uninterrupted_run_ends(multiview, tmp_pa
     run(replace(config, epochs=2), tmp_path / "stopped")
     shutil.rmtree(tmp_path / "stopped" / "multiview")
     resumed = run(config, tmp_path / "stopped", resume=True)
-    assert resumed.resumed_from == 2 and resumed.history[-1] == result.history[-1]
+    timings = ("seconds", "train_seconds")
+    assert resumed.resumed_from == 2
+    assert ({k: v for k, v in resumed.history[-1].items() if k not in timings}
+            == {k: v for k, v in result.history[-1].items() if k not in timings})
+    assert all(resumed.history[-1][key] > 0 for key in timings)
     a = load_checkpoint(result.out / "checkpoint.pt").model
     b = load_checkpoint(tmp_path / "stopped" / "checkpoint.pt").model
     assert all(torch.equal(a[key], b[key]) for key in a)
