@@ -59,7 +59,7 @@ def bytes_read(cache: Path) -> tuple[list[int], int]:
     paths = shard_paths(cache)
     sizes = np.array([sum((cache / folder / path.name).stat().st_size for folder in ("detections", "pairs"))
                       for path in paths])
-    dealt = deal_shards(len(paths), epoch_generator(0, 0), 2)  # the epoch's first draw
+    dealt = deal_shards([path.stat().st_size for path in paths], epoch_generator(0, 0), 2)  # the epoch's first draw
     per_rank = [int(sizes[np.concatenate([dealt[s] for s in rank_streams(2, rank, 2)])].sum()) for rank in range(2)]
     return per_rank, int(sizes.sum())
 

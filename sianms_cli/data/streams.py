@@ -1,9 +1,10 @@
 """Training data read in streams, so that each distributed rank reads only its share of a cache.
 
-An epoch deals the cache's shards, in the epoch's random order, to S streams (stream s gets
-shards s, s + S, s + 2S, ... of that order). Each stream reads only its shards, with its own
-random generator, into batches of its share of the global batch (``BatchShare.of_rank(B, s,
-S)`` rows); a step's global batch is the streams' next batches in stream order. A stream that
+An epoch deals the cache's shards, in the epoch's random order, to S streams, each shard to
+the stream with the fewest bytes dealt so far (so the streams' bytes differ by at most one
+shard's, and the ranks that run them end their epochs close together). Each stream reads only its shards, with its own
+random generator, into batches of its share of the global batch (:func:`stream_batch_size`
+rows); a step's global batch is the streams' next batches in stream order. A stream that
 runs out adds nothing; the epoch ends when every stream has.
 
 Under ``torchrun`` with K ranks (S a multiple of K), rank r runs streams r S/K ... (r+1) S/K - 1
@@ -18,13 +19,28 @@ from typing import Callable, Iterator, Sequence, TypeVar
 
 import numpy as np
 
+from sianms_cli.errors import SianmsError
+
 Batch = TypeVar("Batch")
 
 
-def deal_shards(count: int, rng: np.random.Generator, streams: int) -> list[np.ndarray]:
-    """The shard indices of each of ``streams`` streams: a random order of ``count`` shards, dealt in turn."""
-    order = rng.permutation(count)
-    return [order[stream::streams] for stream in range(streams)]
+def deal_shards(sizes: Sequence[int], rng: np.random.Generator, streams: int) -> list[np.ndarray]:
+    """The shard indices of each of ``streams`` streams, in the order each reads them.
+
+    The shards (``sizes``: their bytes) are taken in a random order, each dealt to the
+    stream with the fewest bytes so far (the first of equals); one stream reads them all in
+    that order.
+    """
+    order = rng.permutation(len(sizes))
+    if streams == 1:
+        return [order]
+    loads = np.zeros(streams)
+    dealt: list[list[int]] = [[] for _ in range(streams)]
+    for shard in order:
+        stream = int(np.argmin(loads))
+        dealt[stream].append(int(shard))
+        loads[stream] += sizes[shard]
+    return [np.array(shards, dtype=np.int64) for shards in dealt]
 
 
 def stream_batch_size(batch_size: int, stream: int, streams: int) -> int:
@@ -43,8 +59,6 @@ def check_streams(streams: int, world: int, batch_size: int, smallest: int) -> N
 
     ``smallest``: the fewest rows a stream's batch may have (2 where batch norm sees it).
     """
-    from sianms_cli.errors import SianmsError
-
     if streams < 1:
         raise SianmsError(f"--streams must be at least 1, got {streams}")
     if streams % world:

@@ -35,11 +35,6 @@ class BatchShare:
     size: int
 
     @classmethod
-    def of_rank(cls, size: int, rank: int, world: int) -> BatchShare:
-        """Rank ``rank``'s contiguous share of ``size`` rows split over ``world`` ranks (sizes differ by <= 1)."""
-        return cls(size * rank // world, size * (rank + 1) // world, size)
-
-    @classmethod
     def of_counts(cls, counts: list[int], rank: int) -> BatchShare:
         """Rank ``rank``'s rows when the ranks hold ``counts`` rows of the global batch, in rank order."""
         return cls(sum(counts[:rank]), sum(counts[:rank + 1]), sum(counts))

@@ -242,7 +242,7 @@ def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config
     """
     network: FPointNetV1 = model.module if world > 1 else model
     model.train()
-    orders = deal_shards(len(frustum_shards(config.cache)), rng, config.streams)
+    orders = deal_shards([path.stat().st_size for path in frustum_shards(config.cache)], rng, config.streams)
     streams = [iterate_batches(config.cache, config.selection, stream_batch_size(config.batch_size, s, config.streams),
                                rng if s == 0 else epoch_generator(config.seed, epoch, s), True, config.augmentation,
                                unions=unions, shards=orders[s])

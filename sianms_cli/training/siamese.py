@@ -192,7 +192,7 @@ def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config
     streams`), so K processes compute what one process with the same streams computes.
     """
     rng = epoch_generator(config.seed, epoch)
-    orders = deal_shards(len(shard_paths(config.cache)), rng, config.streams)
+    orders = deal_shards([path.stat().st_size for path in shard_paths(config.cache)], rng, config.streams)
     streams = [epoch_batches(config.cache, stream_batch_size(config.batch_size, s, config.streams),
                              rng if s == 0 else epoch_generator(config.seed, epoch, s), shards=orders[s])
                for s in rank_streams(config.streams, rank, world)]

@@ -6,15 +6,15 @@ from sianms_cli.models.global_batch import BatchShare, batch_norm, dropout, unif
 
 
 def test_shares_cover_the_batch_in_order_and_weigh_the_loss_to_its_mean():
-    shares = [BatchShare.of_rank(7, rank, 3) for rank in range(3)]
-    assert [(s.start, s.stop) for s in shares] == [(0, 2), (2, 4), (4, 7)]
+    shares = [BatchShare.of_counts([2, 0, 5], rank) for rank in range(3)]
+    assert [(s.start, s.stop, s.size) for s in shares] == [(0, 2, 7), (2, 2, 7), (2, 7, 7)]
     assert sum(s.loss_weight(3) for s in shares) / 3 == 1.0  # DDP averages the ranks' gradients
-    assert BatchShare.of_rank(5, 0, 1).loss_weight(1) == 1.0
+    assert BatchShare.of_counts([5], 0).loss_weight(1) == 1.0
 
 
 def test_a_shares_uniform_draws_are_its_rows_of_the_global_draw():
     whole = uniform(7, 5, None, generator=torch.Generator().manual_seed(1))
-    share = BatchShare.of_rank(7, 1, 2)
+    share = BatchShare.of_counts([3, 4], 1)
     part = uniform(len(share), 5, share, generator=torch.Generator().manual_seed(1))
     assert torch.equal(part, whole[share.start:share.stop])
 
@@ -25,7 +25,7 @@ def test_dropout_is_torchs_and_a_share_masks_its_rows_of_the_global_mask():
     expected = torch.nn.functional.dropout(x, 0.5, training=True)
     torch.manual_seed(4)
     assert torch.equal(dropout(x, 0.5, None, training=True), expected)
-    share = BatchShare.of_rank(6, 1, 2)
+    share = BatchShare.of_counts([3, 3], 1)
     torch.manual_seed(4)
     assert torch.equal(dropout(x[share.start:share.stop], 0.5, share, training=True), expected[3:])
     assert dropout(x, 0.5, None, training=False) is x

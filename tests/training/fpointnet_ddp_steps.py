@@ -8,6 +8,7 @@ import sys
 import torch
 import torch.distributed as dist
 
+from sianms_cli.data.streams import stream_batch_size
 from sianms_cli.models.fpointnet import FPointNetV1
 from sianms_cli.models.fpointnet_losses import fpointnet_loss
 from sianms_cli.models.global_batch import BatchShare
@@ -33,7 +34,7 @@ def main(out: str) -> None:
              "center": torch.randn(BATCH, 3, generator=data, dtype=torch.float64) + torch.tensor([0.0, 0.0, 10.0]),
              "heading": torch.rand(BATCH, generator=data, dtype=torch.float64) * 6,
              "lwh": network.mean_sizes.double()[classes]}
-    share = BatchShare.of_rank(BATCH, rank, world)
+    share = BatchShare.of_counts([stream_batch_size(BATCH, r, world) for r in range(world)], rank)
     mine = {key: value[share.start:share.stop] for key, value in batch.items()}
     network.train()
     losses = []

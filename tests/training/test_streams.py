@@ -12,11 +12,19 @@ from sianms_cli.errors import SianmsError
 EVERY_FRUSTUM = FrustumSelection(num_points=8, min_box_height=0)
 
 
-def test_dealing_covers_every_shard_once_and_one_stream_is_the_plain_random_order():
-    dealt = deal_shards(7, np.random.default_rng(3), 3)
-    assert [len(order) for order in dealt] == [3, 2, 2]
+def test_dealing_gives_each_shard_to_the_lightest_stream_and_one_stream_the_plain_random_order():
+    sizes = [50, 10, 10, 10, 10, 10, 40]
+    order = np.random.default_rng(3).permutation(7).tolist()
+    dealt = deal_shards(sizes, np.random.default_rng(3), 2)
+    loads = [0, 0]
+    for shard in order:  # the rule, one shard at a time
+        lightest = loads.index(min(loads))
+        assert shard in dealt[lightest].tolist()
+        loads[lightest] += sizes[shard]
     assert sorted(np.concatenate(dealt).tolist()) == list(range(7))
-    assert deal_shards(7, np.random.default_rng(3), 1)[0].tolist() == np.random.default_rng(3).permutation(7).tolist()
+    assert [[s for s in order if s in part] for part in map(list, dealt)] == [list(part) for part in dealt]
+    assert max(loads) - min(loads) <= max(sizes)
+    assert deal_shards(sizes, np.random.default_rng(3), 1)[0].tolist() == order
     assert [list(rank_streams(4, rank, 2)) for rank in range(2)] == [[0, 1], [2, 3]]
 
 
@@ -44,7 +52,7 @@ def _frustum_ids(cache, shards):
 
 def test_frustum_streams_read_only_their_shards_and_all_of_them_together(two_shard_cache):
     train = two_shard_cache
-    dealt = deal_shards(len(frustum_shards(train)), np.random.default_rng(0), 2)
+    dealt = deal_shards([1] * len(frustum_shards(train)), np.random.default_rng(0), 2)
     seen = []
     for stream, shards in enumerate(dealt):
         batches = iterate_batches(train, EVERY_FRUSTUM, 1000, np.random.default_rng(stream), True, shards=shards)
@@ -58,7 +66,7 @@ def test_frustum_streams_read_only_their_shards_and_all_of_them_together(two_sha
 
 def test_siamese_streams_pair_only_their_scenes(two_shard_cache):
     train = two_shard_cache
-    dealt = deal_shards(len(shard_paths(train)), np.random.default_rng(0), 2)
+    dealt = deal_shards([1] * len(shard_paths(train)), np.random.default_rng(0), 2)
     for stream, shards in enumerate(dealt):
         scenes = {token for s in shards
                   for token in pq.read_table(shard_paths(train)[s], columns=["scene_token"])["scene_token"].to_pylist()}
