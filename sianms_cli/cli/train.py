@@ -146,8 +146,9 @@ def siamese_cli(
         dims = parse_dims(sweep_dims)
         with bar:
             rows = sweep(config, dims, out, overwrite=overwrite, resume=resume, progress=bar, on_epoch=report_epoch)
-        typer.echo(json.dumps(_json_value({"out": str(out), "rows": rows}), indent=2) if as_json
-                   else f"sweep of d = {sweep_dims} in {out}:\n" + sweep_markdown(rows).rstrip())
+        if not follower:
+            typer.echo(json.dumps(_json_value({"out": str(out), "rows": rows}), indent=2) if as_json
+                       else f"sweep of d = {sweep_dims} in {out}:\n" + sweep_markdown(rows).rstrip())
         return
     with bar:
         result = run(config, out, overwrite=overwrite, resume=resume, progress=bar, on_epoch=report_epoch)

@@ -120,6 +120,13 @@ def init_distributed(device: torch.device) -> tuple[int, int, torch.device]:
     return dist.get_rank(), dist.get_world_size(), device
 
 
+def writes_outputs() -> bool:
+    """Whether this process writes a run's files: a single process, or rank 0 of a distributed run."""
+    import torch.distributed as dist
+
+    return not (dist.is_available() and dist.is_initialized()) or dist.get_rank() == 0
+
+
 def finish_distributed(world: int) -> None:
     """Wait for every rank before the process group is torn down at exit. Rank 0 validates and
     writes after the last epoch; a rank that left at once tore the group down under it and

@@ -69,7 +69,7 @@ from sianms_cli.models.siamese import SiameseEncoder, parameter_count
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.training.run import CHECKPOINT, Checkpoint, RunFolder, choose_device, epoch_generator, \
     finish_distributed, init_distributed, load_checkpoint, load_state, plain, row_counts, seed_everything, \
-    set_learning_rate, step_decay, sum_over_ranks
+    set_learning_rate, step_decay, sum_over_ranks, writes_outputs
 
 KIND = "siamese"
 THRESHOLD_STEPS = 64  # dis_thr candidates: quantiles of the validation candidates' distances
@@ -549,8 +549,9 @@ def sweep(config: SiameseConfig, dims: tuple[int, ...], out: str | Path, *, over
         figures = {key: metrics.get(key) for key in SWEEP_COLUMNS if key.startswith(("val_", "baseline_"))}
         rows.append({"dim": dim, "parameters": result.parameters, "seconds": time.perf_counter() - began,
                      **{key: None if isinstance(v, float) and math.isnan(v) else v for key, v in figures.items()}})
-        write_json(out / "sweep.json", {"config": config.resolved(), "rows": rows})
-        write_text(out / "sweep.md", sweep_markdown(rows))
+        if writes_outputs():  # under torchrun the other ranks' rows lack the validation rank 0 ran
+            write_json(out / "sweep.json", {"config": config.resolved(), "rows": rows})
+            write_text(out / "sweep.md", sweep_markdown(rows))
     return rows
 
 

@@ -55,6 +55,20 @@ def test_siamese_two_gloo_processes_equal_one(two_shard_cache, tiny_caches, tmp_
         assert a["train_loss"] == pytest.approx(b["train_loss"], rel=1e-3)
 
 
+def test_a_siamese_sweep_under_torchrun_is_tabulated_by_rank_0(two_shard_cache, tiny_caches, tmp_path):
+    """The other rank trains each d too but does not validate: its rows must not reach the table."""
+    command = ["train", "siamese", "--cache", str(two_shard_cache), "--val-cache", str(tiny_caches[1]),
+               "--sweep-dims", "2,4", "--epochs", "1", "--conv-channels", "8,8", "--hidden", "16", "--batch-size", "4",
+               "--device", "cpu", "--quiet", "--out", str(tmp_path / "sweep")]
+    done = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",
+                           "-m", "sianms_cli", *command], env={**os.environ, "OMP_NUM_THREADS": "1"},
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stdout.count("sweep of d = 2,4") == 1
+    rows = json.loads((tmp_path / "sweep" / "sweep.json").read_text())["rows"]
+    assert [row["dim"] for row in rows] == [2, 4] and all(row["val_auc"] is not None for row in rows)
+
+
 def test_fpointnet_steps_on_two_gloo_processes_equal_one_in_float64(tmp_path):
     """Batch norm over both ranks, the global batch's random draws, the loss weights: in float64
     three steps on shares of 3 and 4 frustums end where one process ends, to rounding."""
