@@ -15,6 +15,8 @@ S = 1 is the plain reading: every shard by one stream, batches of B.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable, Iterator, Sequence, TypeVar
 
 import numpy as np
@@ -52,6 +54,29 @@ def rank_streams(streams: int, rank: int, world: int) -> range:
     """The streams rank ``rank`` of ``world`` runs (contiguous, so its rows are contiguous in every global batch)."""
     per_rank = streams // world
     return range(rank * per_rank, (rank + 1) * per_rank)
+
+
+@dataclass(frozen=True, eq=False)
+class Stream:
+    """One stream's epoch: the shard indices it reads, in order, its generator and its batch size."""
+
+    shards: np.ndarray
+    rng: np.random.Generator
+    batch_size: int
+
+
+def rank_epoch_streams(paths: Sequence[Path], rng: np.random.Generator,
+                       stream_rng: Callable[[int], np.random.Generator], batch_size: int, streams: int, rank: int,
+                       world: int) -> list[Stream]:
+    """The streams rank ``rank`` of ``world`` runs this epoch.
+
+    The shard files ``paths`` are dealt by their bytes with the epoch's generator ``rng``,
+    which stream 0 then continues (one stream draws exactly what the plain reading draws);
+    stream s > 0 draws from ``stream_rng(s)``.
+    """
+    dealt = deal_shards([path.stat().st_size for path in paths], rng, streams)
+    return [Stream(dealt[s], rng if s == 0 else stream_rng(s), stream_batch_size(batch_size, s, streams))
+            for s in rank_streams(streams, rank, world)]
 
 
 def check_streams(streams: int, world: int, batch_size: int, smallest: int) -> None:

@@ -51,7 +51,7 @@ from sianms_cli.data.cache import complete_manifest
 from sianms_cli.data.frustum_dataset import Augmentation, FrustumSelection, class_statistics, concatenate_batches, \
     empty_batch, frustum_shards, iterate_batches
 from sianms_cli.data.multiview import MultiviewSettings, build_union_shards, multiview_settings
-from sianms_cli.data.streams import check_streams, deal_shards, rank_streams, stream_batch_size, stream_steps
+from sianms_cli.data.streams import check_streams, rank_epoch_streams, stream_steps
 from sianms_cli.errors import SianmsError, check_seed
 from sianms_cli.geometry.iou3d import box_iou3d
 from sianms_cli.models.fpointnet import NUM_HEADING_BINS, FPointNetV1
@@ -242,11 +242,11 @@ def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config
     """
     network: FPointNetV1 = model.module if world > 1 else model
     model.train()
-    orders = deal_shards([path.stat().st_size for path in frustum_shards(config.cache)], rng, config.streams)
-    streams = [iterate_batches(config.cache, config.selection, stream_batch_size(config.batch_size, s, config.streams),
-                               rng if s == 0 else epoch_generator(config.seed, epoch, s), True, config.augmentation,
-                               unions=unions, shards=orders[s])
-               for s in rank_streams(config.streams, rank, world)]
+    streams = [iterate_batches(config.cache, config.selection, stream.batch_size, stream.rng, True,
+                               config.augmentation, unions=unions, shards=stream.shards)
+               for stream in rank_epoch_streams(frustum_shards(config.cache), rng,
+                                                lambda s: epoch_generator(config.seed, epoch, s), config.batch_size,
+                                                config.streams, rank, world)]
     sums = dict.fromkeys(LOSS_TERMS, 0.0)
     seen = union_seen = 0
     for batch, counts in stream_steps(streams, concatenate_batches, empty_batch(config.selection),

@@ -61,7 +61,7 @@ from scipy.stats import rankdata
 from sianms_cli.data.cache import complete_manifest
 from sianms_cli.data.siamese import PairingBatch, Scene, cache_feature_shape, epoch_batches, feature_statistics, \
     hardest_candidates, iter_scenes, shard_paths
-from sianms_cli.data.streams import check_streams, deal_shards, rank_streams, stream_batch_size, stream_steps
+from sianms_cli.data.streams import check_streams, rank_epoch_streams, stream_steps
 from sianms_cli.errors import DataFormatError, SianmsError, check_seed
 from sianms_cli.io import make_folder, write_json, write_text
 from sianms_cli.models.losses import double_margin_loss, pair_distances, positive_terms
@@ -192,10 +192,10 @@ def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config
     streams`), so K processes compute what one process with the same streams computes.
     """
     rng = epoch_generator(config.seed, epoch)
-    orders = deal_shards([path.stat().st_size for path in shard_paths(config.cache)], rng, config.streams)
-    streams = [epoch_batches(config.cache, stream_batch_size(config.batch_size, s, config.streams),
-                             rng if s == 0 else epoch_generator(config.seed, epoch, s), shards=orders[s])
-               for s in rank_streams(config.streams, rank, world)]
+    streams = [epoch_batches(config.cache, stream.batch_size, stream.rng, shards=stream.shards)
+               for stream in rank_epoch_streams(shard_paths(config.cache), rng,
+                                                lambda s: epoch_generator(config.seed, epoch, s), config.batch_size,
+                                                config.streams, rank, world)]
     names = ("loss", "positive", "negative", "items", "fallback", "candidates")
     totals = dict.fromkeys(names, 0.0)
     empty = PairingBatch.empty(cache_feature_shape(config.cache))

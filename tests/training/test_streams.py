@@ -6,7 +6,8 @@ import pytest
 
 from sianms_cli.data.frustum_dataset import FrustumSelection, frustum_shards, iterate_batches
 from sianms_cli.data.siamese import epoch_batches, shard_paths
-from sianms_cli.data.streams import check_streams, deal_shards, rank_streams, stream_batch_size, stream_steps
+from sianms_cli.data.streams import check_streams, deal_shards, rank_epoch_streams, rank_streams, stream_batch_size, \
+    stream_steps
 from sianms_cli.errors import SianmsError
 
 EVERY_FRUSTUM = FrustumSelection(num_points=8, min_box_height=0)
@@ -77,3 +78,14 @@ def test_siamese_streams_pair_only_their_scenes(two_shard_cache):
 def test_a_streams_batch_size_is_its_share_of_the_global_batch():
     assert [stream_batch_size(7, s, 3) for s in range(3)] == [2, 2, 3]
     assert stream_batch_size(8, 0, 1) == 8
+
+
+def test_a_rank_runs_its_streams_with_stream_0_continuing_the_epochs_generator(two_shard_cache):
+    paths = shard_paths(two_shard_cache)
+    epoch = np.random.default_rng(5)
+    [only] = rank_epoch_streams(paths, epoch, lambda s: pytest.fail("one stream needs no other generator"), 8, 1, 0, 1)
+    assert only.rng is epoch and only.batch_size == 8
+    assert only.shards.tolist() == np.random.default_rng(5).permutation(len(paths)).tolist()
+    other = np.random.default_rng(9)
+    [second] = rank_epoch_streams(paths, np.random.default_rng(5), lambda s: other if s == 1 else None, 7, 2, 1, 2)
+    assert second.rng is other and second.batch_size == 4 and len(second.shards) == 1
