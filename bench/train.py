@@ -5,9 +5,11 @@ Prints, all measured in the same run, each in a fresh process:
   reference; the negative candidates scored without gradients are counted apart) with 1
   and 2 torch threads, and their ratio;
 - peak resident memory of one training epoch on a cache and on the same cache 4x (its shard
-  files copied under other names), and their ratio (scene-by-scene streaming: near 1).
+  files copied under other names), and their ratio (scene-by-scene streaming: near 1);
+- with ``--precisions``, each other precision's pairs per second against fp32's on 2 threads.
 
-Usage: python bench/train.py [--scenes 4] [--seconds 20] [--image-scale 0.25] [--epochs 4] [--keep DIR]
+Usage: python bench/train.py [--scenes 4] [--seconds 20] [--image-scale 0.25] [--epochs 4]
+                             [--precisions fp32,bf16] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ import json, resource, sys
 import torch
 torch.set_num_threads(int(sys.argv[3]))
 from sianms_cli.training.siamese import SiameseConfig, run
-config = SiameseConfig(cache=sys.argv[1], epochs=int(sys.argv[4]), device="cpu")
+config = SiameseConfig(cache=sys.argv[1], epochs=int(sys.argv[4]), device="cpu", precision=sys.argv[5])
 result = run(config, sys.argv[2])
 # The epochs after the first only (all of them for a one-epoch run): the first carries torch's
 # kernel selection and the page cache's first read; no start-up, no curves.png.
@@ -62,8 +64,8 @@ def copies(cache: Path, times: int, out: Path) -> Path:
     return out
 
 
-def child(cache: Path, out: Path, threads: int, epochs: int) -> dict:
-    done = subprocess.run([sys.executable, "-c", CHILD, str(cache), str(out), str(threads), str(epochs)],
+def child(cache: Path, out: Path, threads: int, epochs: int, precision: str = "fp32") -> dict:
+    done = subprocess.run([sys.executable, "-c", CHILD, str(cache), str(out), str(threads), str(epochs), precision],
                           capture_output=True, text=True, check=True)
     return json.loads(done.stdout.strip().splitlines()[-1])
 
@@ -74,6 +76,7 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--image-scale", type=float, default=0.25)
     parser.add_argument("--epochs", type=int, default=4)
+    parser.add_argument("--precisions", default="fp32", help="comma-separated, fp32 first: e.g. fp32,bf16")
     parser.add_argument("--keep", type=Path, default=None, help="Folder to keep the dataset, caches and runs in.")
     args = parser.parse_args()
     work = args.keep or Path(tempfile.mkdtemp(prefix="sianms-bench-train-"))
@@ -86,6 +89,10 @@ def main() -> None:
         print(f"{threads} thread(s): {figures['pairs_per_s']:.1f} pairs/s, {figures['candidates_per_s']:.1f} "
               f"negative candidates scored/s ({figures['references']} references in {figures['seconds']:.1f} s)")
     print(f"2 threads / 1 thread: {rates[2]['pairs_per_s'] / rates[1]['pairs_per_s']:.2f}x")
+    for precision in args.precisions.split(",")[1:]:
+        figures = child(cache, work / f"run-{precision}", 2, args.epochs, precision)
+        print(f"{precision}, 2 threads: {figures['pairs_per_s']:.1f} pairs/s, "
+              f"{figures['pairs_per_s'] / rates[2]['pairs_per_s']:.2f}x fp32's")
     big = copies(cache, 4, work / "cache-4x")
     memory = {times: child(folder, work / f"run-{times}x", 1, 1)["peak_rss_mb"] for times, folder in ((1, cache), (4, big))}
     print(f"peak RSS, one epoch: 1x cache {memory[1]:.0f} MB, 4x cache {memory[4]:.0f} MB "

@@ -6,22 +6,24 @@ the 2-thread / 1-thread ratio measured in the same run (models.md §8 measured 1
 at 1,024 points on 2 threads, 10 on 1; 1.7-1.8x). Then, with 2 threads, training against
 the original's formulation of the segmentation head (the global feature tiled to every
 point, then one linear map), which the model replaces by applying the global part once per
-frustum. Batches are random tensors of the real
-shapes: the cache's reading costs well under 1 % of a step (one shard in memory at a time).
+frustum. With several ``--precisions``, each one's frustums per second against fp32's on 2
+threads, as the training runs them (:mod:`sianms_cli.training.precision`: autocast forward,
+float32 loss, loss-scaled backward in fp16). Batches are random tensors of the real shapes:
+the cache's reading costs well under 1 % of a step (one shard in memory at a time).
 
-Usage: python bench/train_fpointnet.py [--points 1024,512] [--batch 32] [--steps 5] [--bf16]
+Usage: python bench/train_fpointnet.py [--points 1024,512] [--batch 32] [--steps 5] [--precisions fp32,bf16]
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import time
 
 import torch
 
 from sianms_cli.models.fpointnet import FPointNetV1
 from sianms_cli.models.fpointnet_losses import fpointnet_loss
+from sianms_cli.training.precision import MixedPrecision, float32_outputs
 
 MEAN_SIZES = torch.tensor([[4.61, 1.95, 1.72], [0.73, 0.66, 1.76], [1.68, 0.60, 1.27]])
 
@@ -44,7 +46,7 @@ class ConcatenatedHead(FPointNetV1):
         return self.seg_head[0][0](torch.cat([point_feature, tiled], dim=2))
 
 
-def frustums_per_second(points: int, size: int, steps: int, train: bool, bf16: bool,
+def frustums_per_second(points: int, size: int, steps: int, train: bool, precision: str = "fp32",
                         network: type[FPointNetV1] = FPointNetV1) -> float:
     """Frustums per second over ``steps`` steps after one warm-up step."""
     torch.manual_seed(0)
@@ -53,18 +55,18 @@ def frustums_per_second(points: int, size: int, steps: int, train: bool, bf16: b
     optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
     model.train(train)
     x, one_hot, targets = batch(size, points, generator)
-    autocast = torch.autocast("cpu", dtype=torch.bfloat16) if bf16 else contextlib.nullcontext()
+    mixed = MixedPrecision(precision, torch.device("cpu"))
 
     def step() -> None:
-        with autocast:
-            if not train:
-                with torch.no_grad():
-                    model(x, one_hot)
-                return
-            losses = fpointnet_loss(model(x, one_hot), targets, model.mean_sizes)
+        if not train:
+            with torch.no_grad(), mixed.autocast():
+                model(x, one_hot)
+            return
+        with mixed.autocast():
+            outputs = model(x, one_hot)
+        losses = fpointnet_loss(float32_outputs(outputs), targets, model.mean_sizes)
         optimizer.zero_grad()
-        losses["total"].float().backward()
-        optimizer.step()
+        mixed.backward_step(losses["total"], optimizer)
 
     step()
     start = time.perf_counter()
@@ -78,24 +80,38 @@ def main() -> None:
     parser.add_argument("--points", default="1024,512")
     parser.add_argument("--batch", type=int, default=32)
     parser.add_argument("--steps", type=int, default=5)
-    parser.add_argument("--bf16", action="store_true", help="bfloat16 autocast (AMX CPUs)")
+    parser.add_argument("--precisions", default="fp32",
+                        help="comma-separated: fp32, bf16 (AVX512-BF16 / AMX CPUs), fp16 (loss-scaled)")
     args = parser.parse_args()
-    print(f"F-PointNets v1, batch {args.batch}, {args.steps} timed steps, {'bf16' if args.bf16 else 'float32'}")
-    print("points | mode      | 1 thread | 2 threads | ratio")
-    for points in (int(p) for p in args.points.split(",")):
-        for train in (True, False):
-            rates = []
-            for threads in (1, 2):
-                torch.set_num_threads(threads)
-                rates.append(frustums_per_second(points, args.batch, args.steps, train, args.bf16))
-            mode = "train" if train else "inference"
-            print(f"{points:6d} | {mode:9s} | {rates[0]:8.1f} | {rates[1]:9.1f} | {rates[1] / rates[0]:.2f}")
-    print("training, 2 threads: segmentation head as the model applies it / as the original concatenates")
+    point_counts = [int(p) for p in args.points.split(",")]
+    precisions = args.precisions.split(",")
+    print(f"F-PointNets v1, batch {args.batch}, {args.steps} timed steps")
+    print("precision | points | mode      | 1 thread | 2 threads | ratio")
+    two_threads = {}
+    for precision in precisions:
+        for points in point_counts:
+            for train in (True, False):
+                rates = []
+                for threads in (1, 2):
+                    torch.set_num_threads(threads)
+                    rates.append(frustums_per_second(points, args.batch, args.steps, train, precision))
+                mode = "train" if train else "inference"
+                two_threads[precision, points, mode] = rates[1]
+                print(f"{precision:9s} | {points:6d} | {mode:9s} | {rates[0]:8.1f} | {rates[1]:9.1f} | "
+                      f"{rates[1] / rates[0]:.2f}")
+    if len(precisions) > 1 and "fp32" in precisions:
+        print("2 threads, each precision / fp32")
+        for precision in (name for name in precisions if name != "fp32"):
+            for key in (key for key in two_threads if key[0] == precision):
+                ratio = two_threads[key] / two_threads["fp32", *key[1:]]
+                print(f"{precision:9s} | {key[1]:6d} | {key[2]:9s} | {ratio:.2f}")
+    print(f"training in {precisions[0]}, 2 threads: segmentation head as the model applies it / as the original "
+          "concatenates")
     print("points | per frustum | concatenated | ratio")
     torch.set_num_threads(2)
-    for points in (int(p) for p in args.points.split(",")):
-        ours = frustums_per_second(points, args.batch, args.steps, True, args.bf16)
-        original = frustums_per_second(points, args.batch, args.steps, True, args.bf16, ConcatenatedHead)
+    for points in point_counts:
+        ours = frustums_per_second(points, args.batch, args.steps, True, precisions[0])
+        original = frustums_per_second(points, args.batch, args.steps, True, precisions[0], ConcatenatedHead)
         print(f"{points:6d} | {ours:11.1f} | {original:12.1f} | {ours / original:.2f}")
 
 

@@ -25,6 +25,9 @@ CACHE = typer.Option(..., help="Training cache (`sianms prepare` of a training s
 OUT = typer.Option(..., help="Run folder: checkpoint.pt, config.json, metrics.csv, curves.png.")
 SEED = typer.Option(0, help="Seed of every random source (same seed, same weights on a CPU).")
 DEVICE = typer.Option("auto", help="auto (CUDA, then CPU), cpu, cuda or cuda:N.")
+PRECISION = typer.Option("auto", help="Training forward passes in fp32, bf16 or fp16 (CUDA only, loss-scaled); "
+                                       "auto: bf16 on GPUs that have it, else fp16; fp32 on a CPU. Validation "
+                                       "runs in fp32.")
 THREADS = typer.Option(None, min=1, help="CPU threads for torch [default: torch's choice].")
 STREAMS = typer.Option(None, help="Training data streams, each reading its own shards; under torchrun each process "
                                   "runs streams/processes of them. One process with --streams K trains what K "
@@ -110,6 +113,7 @@ def siamese_cli(
                                           "(kept in the checkpoint; not in the paper)."),
     seed: int = SEED,
     device: str = DEVICE,
+    precision: str = PRECISION,
     threads: Optional[int] = THREADS,
     streams: Optional[int] = STREAMS,
     sweep_dims: Optional[str] = typer.Option(None, help="Train one model per d (e.g. 5,10,20,50,100,200,500,1000) "
@@ -129,7 +133,7 @@ def siamese_cli(
         cache=str(cache), val_cache=None if val_cache is None else str(val_cache), dim=dim,
         conv_channels=_widths(conv_channels, "--conv-channels"), hidden=_widths(hidden, "--hidden"),
         alpha=alpha, beta=beta, lr=lr, lr_decay=lr_decay, lr_step=lr_step, epochs=epochs, batch_size=batch_size,
-        seed=seed, device=device, standardize=standardize, streams=streams)
+        seed=seed, device=device, precision=precision, standardize=standardize, streams=streams)
 
     def report_epoch(row: dict[str, Any]) -> None:
         if quiet:
@@ -157,12 +161,13 @@ def siamese_cli(
     if as_json:
         typer.echo(json.dumps(_json_value({
             "out": str(result.out), "epochs_run": result.epochs_run, "resumed_from": result.resumed_from,
-            "parameters": result.parameters, "dis_thr": result.dis_thr, "metrics": result.metrics,
+            "parameters": result.parameters, "precision": result.precision, "dis_thr": result.dis_thr,
+            "metrics": result.metrics,
         }), indent=2))
         return
     metrics = result.metrics
     lines = [f"trained epochs {result.resumed_from + 1}-{metrics.get('epoch', result.resumed_from)} into {result.out} "
-             f"({result.parameters:,} parameters); dis_thr {result.dis_thr:.3f}"]
+             f"({result.parameters:,} parameters, {result.precision}); dis_thr {result.dis_thr:.3f}"]
     if not result.epochs_run:
         lines = [f"{result.out} already holds {result.resumed_from} epochs; nothing to do"]
     if "val_auc" in metrics:
@@ -207,6 +212,7 @@ def fpointnet_cli(
     max_distance: float = typer.Option(50.0, help="With --multiview: radius of the multi-frustum circle, metres."),
     seed: int = SEED,
     device: str = DEVICE,
+    precision: str = PRECISION,
     threads: Optional[int] = THREADS,
     streams: Optional[int] = STREAMS,
     resume: bool = RESUME,
@@ -228,7 +234,7 @@ def fpointnet_cli(
         shift=shift, jitter=jitter, epochs=epochs, batch_size=batch_size, lr=lr, decay_step=decay_step,
         decay_rate=decay_rate, box_weight=box_weight, corner_weight=corner_weight, multiview=multiview,
         dataroot=None if dataroot is None else str(dataroot), max_distance=max_distance, seed=seed, device=device,
-        streams=streams)
+        precision=precision, streams=streams)
 
     def report_epoch(row: dict[str, Any]) -> None:
         if quiet:
@@ -247,7 +253,7 @@ def fpointnet_cli(
     if as_json:
         typer.echo(json.dumps(_json_value({
             "out": str(result.out), "epochs_run": list(range(result.resumed_from + 1, len(result.history) + 1)),
-            "resumed_from": result.resumed_from, "parameters": result.parameters,
+            "resumed_from": result.resumed_from, "parameters": result.parameters, "precision": result.precision,
             "mean_sizes_lwh": dict(zip(config.classes, result.mean_sizes.tolist())), "metrics": metrics,
         }), indent=2))
         return
@@ -255,7 +261,7 @@ def fpointnet_cli(
         typer.echo(f"{result.out} already holds {result.resumed_from} epochs; nothing to do")
         return
     lines = [f"trained epochs {result.resumed_from + 1}-{len(result.history)} into {result.out} "
-             f"({result.parameters:,} parameters)"]
+             f"({result.parameters:,} parameters, {result.precision})"]
     if "val_iou_0.5" in metrics:
         for name in ("", *config.classes):
             prefix = f"val_{name}" if name else "val"

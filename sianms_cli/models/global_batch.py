@@ -74,6 +74,7 @@ def batch_norm(norm: nn.BatchNorm1d, x: torch.Tensor) -> torch.Tensor:
     statistics of every rank's rows together (module docstring)."""
     if not (norm.training and dist.is_available() and dist.is_initialized() and dist.get_world_size() > 1):
         return norm(x)
+    x = x.to(torch.promote_types(x.dtype, torch.float32))  # under autocast, statistics in float32, not bfloat16
     count = torch.full((1,), x.shape[0], dtype=x.dtype, device=x.device)
     sums = _AllReduceSum.apply(torch.cat([x.sum(dim=0), count]))
     total = sums[-1]

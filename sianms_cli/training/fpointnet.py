@@ -59,6 +59,7 @@ from sianms_cli.models.fpointnet_losses import decode_boxes, fpointnet_loss
 from sianms_cli.models.global_batch import BatchShare
 from sianms_cli.nuscenes.classes import PAPER_CLASSES
 from sianms_cli.progress import SILENT, Progress
+from sianms_cli.training.precision import MixedPrecision, check_precision, float32_outputs, resolve_precision
 from sianms_cli.training.run import (
     Checkpoint,
     RunFolder,
@@ -119,6 +120,7 @@ class FPointNetConfig:
     max_distance: float = 50.0  # metres: multi-frustum circle radius, nuScenes' car detection range
     seed: int = 0
     device: str = "auto"
+    precision: str = "auto"  # training forward passes' float type (sianms_cli.training.precision)
     streams: int | None = None  # data streams (sianms_cli.data.streams); None: one per process
 
     def __post_init__(self) -> None:
@@ -142,6 +144,7 @@ class FPointNetConfig:
             if not ok:
                 raise SianmsError(message)
         check_seed(self.seed)
+        check_precision(self.precision)
         if self.multiview and not self.dataroot:
             raise SianmsError("--multiview needs --dataroot: the nuScenes dataroot the cache was prepared from "
                               "(union frustums are cut from its LiDAR sweeps)")
@@ -160,13 +163,15 @@ class FPointNetConfig:
 @dataclass
 class FPointNetResult:
     """What a training returns: the run folder, the per-epoch history, the size clusters,
-    the epochs already done when it started (resume), the model's parameter count."""
+    the epochs already done when it started (resume), the model's parameter count, the
+    precision it trained in."""
 
     out: Path
     history: list[dict[str, Any]]
     mean_sizes: np.ndarray
     resumed_from: int
     parameters: int
+    precision: str = "fp32"
 
 
 def schedule(config: FPointNetConfig, samples: int) -> tuple[float, float]:
@@ -227,8 +232,8 @@ def predict(model: FPointNetV1, tensors: dict[str, torch.Tensor],
 
 def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config: FPointNetConfig, epoch: int,
                 rng: np.random.Generator, generator: torch.Generator, samples: int, device: torch.device,
-                progress: Progress, unions: Path | None = None, rank: int = 0,
-                world: int = 1) -> tuple[dict[str, float], int]:
+                progress: Progress, unions: Path | None = None, rank: int = 0, world: int = 1,
+                precision: MixedPrecision | None = None) -> tuple[dict[str, float], int]:
     """One pass over the training cache (and the union frustums in ``unions``, a folder of
     :func:`~sianms_cli.data.multiview.build_union_shards`); (mean loss terms weighted by batch
     size plus the frustum counts, samples seen after).
@@ -238,9 +243,11 @@ def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config
     ``model`` is the network or, with ``world`` > 1 ranks, its DistributedDataParallel
     wrapper; each rank reads its streams and trains on its rows of every global batch
     (module docstring). A rank whose streams have run out still takes part in each step,
-    with no rows and a zero loss, until every rank's have.
+    with no rows and a zero loss, until every rank's have. ``precision``: the forward passes'
+    autocast and the backward step (None: float32).
     """
     network: FPointNetV1 = model.module if world > 1 else model
+    precision = precision or MixedPrecision("fp32", device)
     model.train()
     streams = [iterate_batches(config.cache, config.selection, stream.batch_size, stream.rng, True,
                                config.augmentation, unions=unions, shards=stream.shards)
@@ -257,16 +264,18 @@ def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config
         set_learning_rate(optimizer, lr)
         network.set_bn_momentum(momentum)
         tensors = to_tensors(batch, len(config.classes), device)
-        outputs = model(tensors["points"], tensors["one_hot"], generator=generator, share=share)
+        with precision.autocast():
+            outputs = model(tensors["points"], tensors["one_hot"], generator=generator, share=share)
+        outputs = float32_outputs(outputs)
         optimizer.zero_grad(set_to_none=True)
         if len(share):
             losses = fpointnet_loss(outputs, tensors, network.mean_sizes, config.box_weight, config.corner_weight)
-            (losses["total"] * share.loss_weight(world)).backward()
+            loss = losses["total"] * share.loss_weight(world)
             for term in LOSS_TERMS:
                 sums[term] += losses[term].item() * len(share)
         else:  # no rows here: the backward pass's collectives still need this rank, with zero gradients
-            sum(value.sum() for value in outputs.values() if value.requires_grad).mul(0.0).backward()
-        optimizer.step()
+            loss = sum(value.sum() for value in outputs.values() if value.requires_grad).mul(0.0)
+        precision.backward_step(loss, optimizer)
         seen += share.size
         union_seen += int(batch["union"].sum())
         samples += share.size
@@ -348,10 +357,12 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
     rank, world, device = init_distributed(choose_device(config.device))
     config = replace(config, streams=config.streams or world)
     check_streams(config.streams, world, config.batch_size, smallest=2)  # batch norm: two frustums per stream
+    precision = MixedPrecision(resolve_precision(config.precision, device), device)
     union_settings = (multiview_settings(config.cache, config.dataroot, config.max_distance) if config.multiview
                       else None)
     folder = RunFolder.open(out, kind="fpointnet", config=plain(asdict(config)), overwrite=overwrite,
-                            resume=resume, may_differ=("epochs", "device", "dataroot"), write=rank == 0)
+                            resume=resume, may_differ=("epochs", "device", "precision", "dataroot"),
+                            write=rank == 0)
     with folder:
         unions, union_counts = None, {}
         if union_settings is not None:  # once per run: a resumed run finds them done (their key matches)
@@ -368,6 +379,7 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
             optimizer.load_state_dict(folder.resumed.optimizer)
             start, history = folder.resumed.epoch, list(folder.resumed.history)
             samples = int(folder.resumed.extra["samples"])
+            precision.load_state_dict(folder.resumed.extra.get("grad_scaler", {}))
         trained = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
         for epoch in range(start, config.epochs):
             rng = epoch_generator(config.seed, epoch)
@@ -378,7 +390,7 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
             row: dict[str, Any] = {"epoch": epoch + 1, "lr": schedule(config, samples)[0]}
             began = time.perf_counter()
             losses, samples = train_epoch(trained, optimizer, config, epoch, rng, generator, samples, device,
-                                          progress, unions, rank, world)
+                                          progress, unions, rank, world, precision)
             row.update(losses, train_seconds=time.perf_counter() - began)
             if config.val_cache is not None and rank == 0:
                 row.update(validate(model, config, rng, generator, device))
@@ -391,7 +403,9 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
                                    extra={"samples": samples, "classes": list(config.classes),
                                           "mean_sizes": mean_sizes.tolist(), "train_counts": counts.tolist(),
                                           "train_union_frustums": sum(union_counts.values()),
-                                          "num_heading_bins": NUM_HEADING_BINS}),
+                                          "num_heading_bins": NUM_HEADING_BINS, "precision": precision.name,
+                                          "grad_scaler": precision.state_dict()}),
                         curves=(epoch + 1) % CURVES_EVERY == 0 or epoch + 1 == config.epochs)
     finish_distributed(world)
-    return FPointNetResult(Path(out), history, mean_sizes, start, sum(p.numel() for p in model.parameters()))
+    return FPointNetResult(Path(out), history, mean_sizes, start, sum(p.numel() for p in model.parameters()),
+                           precision.name)

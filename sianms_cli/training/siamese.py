@@ -67,6 +67,7 @@ from sianms_cli.io import make_folder, write_json, write_text
 from sianms_cli.models.losses import double_margin_loss, pair_distances, positive_terms
 from sianms_cli.models.siamese import SiameseEncoder, parameter_count
 from sianms_cli.progress import SILENT, Progress
+from sianms_cli.training.precision import MixedPrecision, check_precision, resolve_precision
 from sianms_cli.training.run import CHECKPOINT, Checkpoint, RunFolder, choose_device, epoch_generator, \
     finish_distributed, init_distributed, load_checkpoint, load_state, plain, row_counts, seed_everything, \
     set_learning_rate, step_decay, sum_over_ranks, writes_outputs
@@ -102,6 +103,7 @@ class SiameseConfig:
     batch_size: int = 8
     seed: int = 0
     device: str = "auto"
+    precision: str = "auto"  # training forward passes' float type (sianms_cli.training.precision)
     standardize: bool = False
     streams: int | None = None  # data streams (sianms_cli.data.streams); None: one per process
 
@@ -125,6 +127,7 @@ class SiameseConfig:
             if not ok:
                 raise SianmsError(message)
         check_seed(self.seed)
+        check_precision(self.precision)
 
     def resolved(self) -> dict[str, Any]:
         """The config as plain types, paths absolute (config.json and the checkpoint)."""
@@ -149,7 +152,8 @@ def _tensor(features: np.ndarray, device: torch.device) -> torch.Tensor:
 
 
 def train_step(model: torch.nn.Module, optimizer: torch.optim.Optimizer, batch: PairingBatch,
-               config: SiameseConfig, device: torch.device, world: int = 1) -> dict[str, float]:
+               config: SiameseConfig, device: torch.device, world: int = 1,
+               precision: MixedPrecision | None = None) -> dict[str, float]:
     """One step of §IV-B on a batch (this rank's share of it); the summed terms and the mining counts.
 
     The candidates are scored with the current weights without gradients (no layer behaves
@@ -157,25 +161,29 @@ def train_step(model: torch.nn.Module, optimizer: torch.optim.Optimizer, batch: 
     chosen negative joins the backward pass. Under DistributedDataParallel (``world`` > 1)
     the loss is scaled by ``world`` so the averaged gradient is that of eq. (6)'s sum over
     the global batch, as in one process; a rank whose share is empty still joins the
-    gradient exchange with a zero loss.
+    gradient exchange with a zero loss. ``precision``: the forward passes' autocast and the
+    backward step (None: float32); distances and the loss are computed in float32.
     """
+    precision = precision or MixedPrecision("fp32", device)
     model.train()
     encoder = model.module if world > 1 else model
     k = len(batch)
     reference, positive = _tensor(batch.reference, device), _tensor(batch.positive, device)
     if k:
         items = torch.from_numpy(batch.candidate_item).to(device)
-        with torch.no_grad():
-            distances = pair_distances(encoder(reference)[items], encoder(_tensor(batch.candidates, device)))
+        with torch.no_grad(), precision.autocast():
+            embedded_references, embedded_candidates = encoder(reference), encoder(_tensor(batch.candidates, device))
+        distances = pair_distances(embedded_references.float()[items], embedded_candidates.float())
         chosen = hardest_candidates(distances.cpu().numpy(), batch.candidate_item, k)
         negative = _tensor(batch.candidates[chosen], device)
     else:
         negative = reference
-    embedded = model(torch.cat([reference, positive, negative]))
+    with precision.autocast():
+        embedded = model(torch.cat([reference, positive, negative]))
+    embedded = embedded.float()
     loss = double_margin_loss(embedded[:k], embedded[k:2 * k], embedded[2 * k:], config.alpha, config.beta)
     optimizer.zero_grad(set_to_none=True)
-    (loss * world).backward()
-    optimizer.step()
+    precision.backward_step(loss * world, optimizer)
     with torch.no_grad():
         positive_sum = positive_terms(pair_distances(embedded[:k], embedded[k:2 * k]), config.alpha).sum().item()
     return {"loss": loss.item(), "positive": positive_sum, "negative": loss.item() - positive_sum,
@@ -183,7 +191,8 @@ def train_step(model: torch.nn.Module, optimizer: torch.optim.Optimizer, batch: 
 
 
 def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config: SiameseConfig,
-                device: torch.device, epoch: int, rank: int = 0, world: int = 1) -> dict[str, float]:
+                device: torch.device, epoch: int, rank: int = 0, world: int = 1,
+                precision: MixedPrecision | None = None) -> dict[str, float]:
     """One epoch over the training cache; the mean per reference of eq. (6) and its two terms.
 
     The epoch's generator deals the scenes to ``config.streams`` streams and pairs stream 0's;
@@ -201,7 +210,7 @@ def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config
     empty = PairingBatch.empty(cache_feature_shape(config.cache))
     for batch, _ in stream_steps(streams, PairingBatch.concatenate, empty, len,
                                  lambda count: row_counts(count, rank, world, device)):
-        for key, value in train_step(model, optimizer, batch, config, device, world).items():
+        for key, value in train_step(model, optimizer, batch, config, device, world, precision).items():
             totals[key] += value
     totals = dict(zip(names, sum_over_ranks([totals[name] for name in names], device, world)))
     if totals["items"] == 0:
@@ -354,7 +363,8 @@ def baseline(cache: str) -> dict[str, float]:
 
 @dataclass
 class SiameseResult:
-    """What a run did: where, which epochs, the last epoch's figures, the chosen ``dis_thr``."""
+    """What a run did: where, which epochs, the last epoch's figures, the chosen ``dis_thr``, the
+    precision it trained in."""
 
     out: Path
     epochs_run: list[int]
@@ -364,6 +374,7 @@ class SiameseResult:
     dis_thr: float
     parameters: int
     history: list[dict[str, Any]] = field(default_factory=list)
+    precision: str = "fp32"
 
 
 def run(config: SiameseConfig, out: str | Path, *, overwrite: bool = False, resume: bool = False,
@@ -389,9 +400,10 @@ def run(config: SiameseConfig, out: str | Path, *, overwrite: bool = False, resu
     rank, world, device = init_distributed(choose_device(config.device))
     config = replace(config, streams=config.streams or world)
     check_streams(config.streams, world, config.batch_size, smallest=1)
+    precision = MixedPrecision(resolve_precision(config.precision, device), device)
     resolved = config.resolved() | {"feature_shape": list(feature_shape)}
     folder = RunFolder.open(out, kind=KIND, config=resolved, overwrite=overwrite, resume=resume,
-                            may_differ=("epochs", "device"), write=rank == 0)
+                            may_differ=("epochs", "device", "precision"), write=rank == 0)
     folder.panels = CURVES
     validating = config.val_cache is not None and rank == 0
     with folder:
@@ -408,6 +420,7 @@ def run(config: SiameseConfig, out: str | Path, *, overwrite: bool = False, resu
             load_state(model, folder.resumed.model, folder.checkpoint_path)
             optimizer.load_state_dict(folder.resumed.optimizer)
             history, start = list(folder.resumed.history), folder.resumed.epoch
+            precision.load_state_dict(folder.resumed.extra.get("grad_scaler", {}))
         trained = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
         reference = baseline(config.val_cache) if validating else {}
         dis_thr = (config.alpha + config.beta) / 2
@@ -420,7 +433,7 @@ def run(config: SiameseConfig, out: str | Path, *, overwrite: bool = False, resu
             lr = step_decay(config.lr, config.lr_decay, config.lr_step, epoch)
             set_learning_rate(optimizer, lr)
             row: dict[str, Any] = {"epoch": epoch + 1, "lr": lr,
-                                   **train_epoch(trained, optimizer, config, device, epoch, rank, world)}
+                                   **train_epoch(trained, optimizer, config, device, epoch, rank, world, precision)}
             if validating:
                 row |= validate(model, config, device) | reference
                 dis_thr = row["val_dis_thr"]
@@ -429,7 +442,8 @@ def run(config: SiameseConfig, out: str | Path, *, overwrite: bool = False, resu
             folder.save(Checkpoint(kind=KIND, config=resolved, epoch=epoch + 1, model=model.state_dict(),
                                    optimizer=optimizer.state_dict(), history=history,
                                    extra={"dis_thr": dis_thr, "feature_shape": list(feature_shape),
-                                          "baseline": reference}), curves=epoch + 1 == config.epochs)
+                                          "baseline": reference, "precision": precision.name,
+                                          "grad_scaler": precision.state_dict()}), curves=epoch + 1 == config.epochs)
             epochs_run.append(epoch + 1)
             if on_epoch is not None and rank == 0:
                 on_epoch(row)
@@ -437,7 +451,7 @@ def run(config: SiameseConfig, out: str | Path, *, overwrite: bool = False, resu
     finish_distributed(world)
     return SiameseResult(out=Path(out), epochs_run=epochs_run, resumed_from=start,
                          metrics=history[-1] if history else {}, baseline=reference, dis_thr=dis_thr,
-                         parameters=parameter_count(model), history=history)
+                         parameters=parameter_count(model), history=history, precision=precision.name)
 
 
 # --------------------------------------------------------------------------- inference
