@@ -25,7 +25,9 @@ epochs on 1,024 points in the original): a demo shows the mechanics and the dire
 effects, and ``--scenes`` / ``--siamese-epochs`` / ``--fpointnet-epochs`` scale it up.
 v1.0-mini caps a demo at its ten scenes, two of them validation; ``version="v1.0-trainval"``
 takes any number of the devkit's trainval scene names, 150/850 of them validation (as
-nuScenes), for a validation set large enough to rank the methods.
+nuScenes), for a validation set large enough to rank the methods. The trainings run on the
+CPU in float32 unless ``precision="bf16"`` (:mod:`sianms_cli.training.precision`), which is
+faster on CPUs that compute bfloat16 natively and trains other weights.
 """
 
 from __future__ import annotations
@@ -58,8 +60,8 @@ FOLDERS = {"synth": "data", "prepare-train": "cache-train", "prepare-val": "cach
 STAGES = tuple(FOLDERS)
 STAGE_FIELDS = {  # the resolved config's fields each stage's output depends on, besides the stages before it
     "synth": ("seed", "version", "scenes", "image_scale", "scene_seconds"), "prepare-train": (), "prepare-val": (),
-    "siamese": ("siamese_epochs", "siamese_lr"),
-    "fpointnet": ("fpointnet_epochs", "fpointnet_batch_size", "num_points", "num_object_points"),
+    "siamese": ("siamese_epochs", "siamese_lr", "precision"),
+    "fpointnet": ("fpointnet_epochs", "fpointnet_batch_size", "num_points", "num_object_points", "precision"),
     "eval": ("nms_sweep",), "report": (),
 }
 
@@ -91,6 +93,7 @@ DEFAULT = DemoSettings(scenes=10, image_scale=0.25, scene_seconds=20.0, siamese_
 QUICK = replace(DEFAULT, scenes=2, siamese_epochs=4, fpointnet_epochs=4, fpointnet_batch_size=8, num_points=128,
                 num_object_points=64)
 PROFILES = {"default": DEFAULT, "quick": QUICK}
+DEMO_PRECISIONS = ("fp32", "bf16")  # the demo trains on the CPU, where float16 is slow (training.precision)
 
 
 @dataclass(frozen=True)
@@ -103,9 +106,13 @@ class DemoConfig:
     scenes: int | None = None
     siamese_epochs: int | None = None
     fpointnet_epochs: int | None = None
+    precision: str = "fp32"
 
     def __post_init__(self) -> None:
         check_seed(self.seed)
+        if self.precision not in DEMO_PRECISIONS:
+            raise SianmsError(f"--precision must be {' or '.join(DEMO_PRECISIONS)} (the demo trains on the CPU), "
+                              f"got '{self.precision}'")
         if self.version not in VERSIONS:
             raise SianmsError(f"--version must be one of {', '.join(VERSIONS)}, got {self.version}")
         most = VERSIONS[self.version].max_scenes
@@ -134,7 +141,8 @@ class DemoConfig:
         return replace(PROFILES[self.profile], **overrides)
 
     def resolved(self) -> dict[str, Any]:
-        return {"profile": self.profile, "seed": self.seed, "version": self.version, **asdict(self.settings)}
+        return {"profile": self.profile, "seed": self.seed, "version": self.version, **asdict(self.settings),
+                "precision": self.precision}
 
 
 @dataclass
@@ -178,7 +186,8 @@ def _siamese(config: DemoConfig, out: Path, progress: Progress, workers: int) ->
 
     settings = config.settings
     run(SiameseConfig(cache=str(out / FOLDERS["prepare-train"]), val_cache=str(out / FOLDERS["prepare-val"]),
-                      lr=settings.siamese_lr, epochs=settings.siamese_epochs, seed=config.seed, device="cpu"),
+                      lr=settings.siamese_lr, epochs=settings.siamese_epochs, seed=config.seed, device="cpu",
+                      precision=config.precision),
         out / FOLDERS["siamese"], resume=True, progress=progress)
 
 
@@ -189,7 +198,8 @@ def _fpointnet(config: DemoConfig, out: Path, progress: Progress, workers: int) 
     run(FPointNetConfig(cache=str(out / FOLDERS["prepare-train"]), val_cache=str(out / FOLDERS["prepare-val"]),
                         num_points=settings.num_points, num_object_points=settings.num_object_points,
                         min_box_height=settings.min_box_height, epochs=settings.fpointnet_epochs,
-                        batch_size=settings.fpointnet_batch_size, seed=config.seed, device="cpu"),
+                        batch_size=settings.fpointnet_batch_size, seed=config.seed, device="cpu",
+                        precision=config.precision),
         out / FOLDERS["fpointnet"], resume=True, progress=progress)
 
 

@@ -121,7 +121,8 @@ def test_profiles_and_overrides():
     assert larger.splits == ("train", "val") and larger.settings.scenes == 40
     for kwargs, flag in (({"seed": -1}, "--seed"), ({"scenes": 1}, "--scenes"), ({"scenes": 11}, "--scenes"),
                          ({"version": "v1.0-trainval", "scenes": 851}, "--scenes"),
-                         ({"version": "v1.0-test"}, "--version"), ({"fpointnet_epochs": 0}, "--fpointnet-epochs")):
+                         ({"version": "v1.0-test"}, "--version"), ({"fpointnet_epochs": 0}, "--fpointnet-epochs"),
+                         ({"precision": "fp16"}, "--precision must be fp32 or bf16")):
         with pytest.raises(SianmsError, match=flag):
             DemoConfig(**kwargs)
 
@@ -142,6 +143,8 @@ def test_overwrite_keeps_the_stages_before_the_first_one_the_change_affects(tmp_
     assert sorted(p.name for p in out.iterdir()) == sorted(["demo.json", *(demo.FOLDERS[s] for s in kept)])
     assert demo.first_changed_stage(more_epochs, DemoConfig(seed=1).resolved()) == 0
     assert demo.first_changed_stage(more_epochs, more_epochs) == len(demo.STAGES)
+    bf16 = DemoConfig(precision="bf16").resolved()
+    assert demo.first_changed_stage(DemoConfig().resolved(), bf16) == demo.STAGES.index("siamese")
 
 
 def test_a_trainval_demo_synthesises_trainval_names_and_prepares_its_train_and_val_splits(tmp_path, monkeypatch):

@@ -23,6 +23,8 @@ def demo_cli(
                                                     "[default: the profile's]."),
     siamese_epochs: Optional[int] = typer.Option(None, help="Siamese epochs [default: the profile's]."),
     fpointnet_epochs: Optional[int] = typer.Option(None, help="Frustum PointNets epochs [default: the profile's]."),
+    precision: str = typer.Option("fp32", help="Both trainings in fp32 or bf16 (faster where the CPU computes "
+                                               "bfloat16 natively: AVX512-BF16, AMX; other weights, other numbers)."),
     threads: Optional[int] = typer.Option(None, min=1, help="CPU threads for torch [default: torch's choice]."),
     workers: int = typer.Option(2, min=1, help="Processes for synth (the dataset does not depend on it)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a demo of another config at --out."),
@@ -42,7 +44,7 @@ def demo_cli(
 
         torch.set_num_threads(threads)
     config = DemoConfig(quick=quick, seed=seed, version=version, scenes=scenes, siamese_epochs=siamese_epochs,
-                        fpointnet_epochs=fpointnet_epochs)
+                        fpointnet_epochs=fpointnet_epochs, precision=precision)
 
     def announce(stage: str, event: str, seconds: float | None) -> None:
         if quiet:
