@@ -8,8 +8,11 @@ Prints, all measured in the same run, each in a fresh process:
   files copied under other names), and their ratio (scene-by-scene streaming: near 1);
 - with ``--precisions``, each other precision's pairs per second against fp32's on 2 threads.
 
+``--device cuda`` trains on the GPU (the thread counts are then the CPU's, which read and pair
+the batches).
+
 Usage: python bench/train.py [--scenes 4] [--seconds 20] [--image-scale 0.25] [--epochs 4]
-                             [--precisions fp32,bf16] [--keep DIR]
+                             [--precisions fp32,bf16] [--device cpu|cuda|cuda:N] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ import json, resource, sys
 import torch
 torch.set_num_threads(int(sys.argv[3]))
 from sianms_cli.training.siamese import SiameseConfig, run
-config = SiameseConfig(cache=sys.argv[1], epochs=int(sys.argv[4]), device="cpu", precision=sys.argv[5])
+config = SiameseConfig(cache=sys.argv[1], epochs=int(sys.argv[4]), precision=sys.argv[5], device=sys.argv[6])
 result = run(config, sys.argv[2])
 # The epochs after the first only (all of them for a one-epoch run): the first carries torch's
 # kernel selection and the page cache's first read; no start-up, no curves.png.
@@ -64,9 +67,9 @@ def copies(cache: Path, times: int, out: Path) -> Path:
     return out
 
 
-def child(cache: Path, out: Path, threads: int, epochs: int, precision: str = "fp32") -> dict:
-    done = subprocess.run([sys.executable, "-c", CHILD, str(cache), str(out), str(threads), str(epochs), precision],
-                          capture_output=True, text=True, check=True)
+def child(cache: Path, out: Path, threads: int, epochs: int, precision: str = "fp32", device: str = "cpu") -> dict:
+    done = subprocess.run([sys.executable, "-c", CHILD, str(cache), str(out), str(threads), str(epochs), precision,
+                           device], capture_output=True, text=True, check=True)
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
@@ -77,6 +80,7 @@ def main() -> None:
     parser.add_argument("--image-scale", type=float, default=0.25)
     parser.add_argument("--epochs", type=int, default=4)
     parser.add_argument("--precisions", default="fp32", help="comma-separated, fp32 first: e.g. fp32,bf16")
+    parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
     parser.add_argument("--keep", type=Path, default=None, help="Folder to keep the dataset, caches and runs in.")
     args = parser.parse_args()
     work = args.keep or Path(tempfile.mkdtemp(prefix="sianms-bench-train-"))
@@ -84,13 +88,14 @@ def main() -> None:
     manifest = json.loads((cache / "manifest.json").read_text())
     print(f"cache: {manifest['counts']['detections']} detections, {manifest['counts']['pairs']} pairs "
           f"({args.scenes} scenes x {args.seconds:g} s, images x{args.image_scale:g}); siamese defaults (d = 100)")
-    rates = {threads: child(cache, work / f"run-t{threads}", threads, args.epochs) for threads in (1, 2)}
+    rates = {threads: child(cache, work / f"run-t{threads}", threads, args.epochs, device=args.device)
+             for threads in (1, 2)}
     for threads, figures in rates.items():
         print(f"{threads} thread(s): {figures['pairs_per_s']:.1f} pairs/s, {figures['candidates_per_s']:.1f} "
               f"negative candidates scored/s ({figures['references']} references in {figures['seconds']:.1f} s)")
     print(f"2 threads / 1 thread: {rates[2]['pairs_per_s'] / rates[1]['pairs_per_s']:.2f}x")
     for precision in args.precisions.split(",")[1:]:
-        figures = child(cache, work / f"run-{precision}", 2, args.epochs, precision)
+        figures = child(cache, work / f"run-{precision}", 2, args.epochs, precision, args.device)
         print(f"{precision}, 2 threads: {figures['pairs_per_s']:.1f} pairs/s, "
               f"{figures['pairs_per_s'] / rates[2]['pairs_per_s']:.2f}x fp32's")
     big = copies(cache, 4, work / "cache-4x")

@@ -11,7 +11,11 @@ threads, as the training runs them (:mod:`sianms_cli.training.precision`: autoca
 float32 loss, loss-scaled backward in fp16). Batches are random tensors of the real shapes:
 the cache's reading costs well under 1 % of a step (one shard in memory at a time).
 
+On a GPU (``--device cuda``) the same tables have one column, the device's, and the
+thread comparison is left out.
+
 Usage: python bench/train_fpointnet.py [--points 1024,512] [--batch 32] [--steps 5] [--precisions fp32,bf16]
+                                       [--device cpu|cuda|cuda:N]
 """
 
 from __future__ import annotations
@@ -47,15 +51,22 @@ class ConcatenatedHead(FPointNetV1):
 
 
 def frustums_per_second(points: int, size: int, steps: int, train: bool, precision: str = "fp32",
-                        network: type[FPointNetV1] = FPointNetV1) -> float:
+                        network: type[FPointNetV1] = FPointNetV1, device: torch.device = torch.device("cpu")) -> float:
     """Frustums per second over ``steps`` steps after one warm-up step."""
     torch.manual_seed(0)
     generator = torch.Generator().manual_seed(0)
-    model = network(MEAN_SIZES)
+    model = network(MEAN_SIZES).to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
     model.train(train)
     x, one_hot, targets = batch(size, points, generator)
-    mixed = MixedPrecision(precision, torch.device("cpu"))
+    x, one_hot = x.to(device), one_hot.to(device)
+    targets = {key: value.to(device) for key, value in targets.items()}
+    mixed = MixedPrecision(precision, device)
+
+    def finished() -> float:  # CUDA runs asynchronously: wait for the queued steps before reading the clock
+        if device.type == "cuda":
+            torch.cuda.synchronize(device)
+        return time.perf_counter()
 
     def step() -> None:
         if not train:
@@ -69,10 +80,10 @@ def frustums_per_second(points: int, size: int, steps: int, train: bool, precisi
         mixed.backward_step(losses["total"], optimizer)
 
     step()
-    start = time.perf_counter()
+    start = finished()
     for _ in range(steps):
         step()
-    return steps * size / (time.perf_counter() - start)
+    return steps * size / (finished() - start)
 
 
 def main() -> None:
@@ -82,36 +93,42 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=5)
     parser.add_argument("--precisions", default="fp32",
                         help="comma-separated: fp32, bf16 (AVX512-BF16 / AMX CPUs), fp16 (loss-scaled)")
+    parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
     args = parser.parse_args()
+    device = torch.device(args.device)
+    on_cpu = device.type == "cpu"
     point_counts = [int(p) for p in args.points.split(",")]
     precisions = args.precisions.split(",")
-    print(f"F-PointNets v1, batch {args.batch}, {args.steps} timed steps")
-    print("precision | points | mode      | 1 thread | 2 threads | ratio")
-    two_threads = {}
+    print(f"F-PointNets v1, batch {args.batch}, {args.steps} timed steps, "
+          f"{'CPU' if on_cpu else torch.cuda.get_device_name(device)}")
+    print("precision | points | mode      | " + ("1 thread | 2 threads | ratio" if on_cpu else "frustums/s"))
+    fastest = {}  # (precision, points, mode) -> frustums/s on 2 threads or the GPU
     for precision in precisions:
         for points in point_counts:
             for train in (True, False):
                 rates = []
-                for threads in (1, 2):
-                    torch.set_num_threads(threads)
-                    rates.append(frustums_per_second(points, args.batch, args.steps, train, precision))
+                for threads in ((1, 2) if on_cpu else (None,)):
+                    if threads is not None:
+                        torch.set_num_threads(threads)
+                    rates.append(frustums_per_second(points, args.batch, args.steps, train, precision, device=device))
                 mode = "train" if train else "inference"
-                two_threads[precision, points, mode] = rates[1]
-                print(f"{precision:9s} | {points:6d} | {mode:9s} | {rates[0]:8.1f} | {rates[1]:9.1f} | "
-                      f"{rates[1] / rates[0]:.2f}")
+                fastest[precision, points, mode] = rates[-1]
+                columns = (f"{rates[0]:8.1f} | {rates[1]:9.1f} | {rates[1] / rates[0]:.2f}" if on_cpu
+                           else f"{rates[0]:10.1f}")
+                print(f"{precision:9s} | {points:6d} | {mode:9s} | {columns}")
     if len(precisions) > 1 and "fp32" in precisions:
-        print("2 threads, each precision / fp32")
+        print(f"{'2 threads' if on_cpu else args.device}, each precision / fp32")
         for precision in (name for name in precisions if name != "fp32"):
-            for key in (key for key in two_threads if key[0] == precision):
-                ratio = two_threads[key] / two_threads["fp32", *key[1:]]
-                print(f"{precision:9s} | {key[1]:6d} | {key[2]:9s} | {ratio:.2f}")
-    print(f"training in {precisions[0]}, 2 threads: segmentation head as the model applies it / as the original "
-          "concatenates")
+            for key in (key for key in fastest if key[0] == precision):
+                print(f"{precision:9s} | {key[1]:6d} | {key[2]:9s} | {fastest[key] / fastest['fp32', *key[1:]]:.2f}")
+    print(f"training in {precisions[0]}{', 2 threads' if on_cpu else ''}: segmentation head as the model applies "
+          "it / as the original concatenates")
     print("points | per frustum | concatenated | ratio")
-    torch.set_num_threads(2)
+    if on_cpu:
+        torch.set_num_threads(2)
     for points in point_counts:
-        ours = frustums_per_second(points, args.batch, args.steps, True, precisions[0])
-        original = frustums_per_second(points, args.batch, args.steps, True, precisions[0], ConcatenatedHead)
+        ours = frustums_per_second(points, args.batch, args.steps, True, precisions[0], device=device)
+        original = frustums_per_second(points, args.batch, args.steps, True, precisions[0], ConcatenatedHead, device)
         print(f"{points:6d} | {ours:11.1f} | {original:12.1f} | {ours / original:.2f}")
 
 
