@@ -232,8 +232,8 @@ def predict(model: FPointNetV1, tensors: dict[str, torch.Tensor],
 
 def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config: FPointNetConfig, epoch: int,
                 rng: np.random.Generator, generator: torch.Generator, samples: int, device: torch.device,
-                progress: Progress, unions: Path | None = None, rank: int = 0, world: int = 1,
-                precision: MixedPrecision | None = None) -> tuple[dict[str, float], int]:
+                progress: Progress, precision: MixedPrecision, unions: Path | None = None, rank: int = 0,
+                world: int = 1) -> tuple[dict[str, float], int]:
     """One pass over the training cache (and the union frustums in ``unions``, a folder of
     :func:`~sianms_cli.data.multiview.build_union_shards`); (mean loss terms weighted by batch
     size plus the frustum counts, samples seen after).
@@ -244,10 +244,9 @@ def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config
     wrapper; each rank reads its streams and trains on its rows of every global batch
     (module docstring). A rank whose streams have run out still takes part in each step,
     with no rows and a zero loss, until every rank's have. ``precision``: the forward passes'
-    autocast and the backward step (None: float32).
+    autocast and the backward step.
     """
     network: FPointNetV1 = model.module if world > 1 else model
-    precision = precision or MixedPrecision("fp32", device)
     model.train()
     streams = [iterate_batches(config.cache, config.selection, stream.batch_size, stream.rng, True,
                                config.augmentation, unions=unions, shards=stream.shards)
@@ -379,7 +378,7 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
             optimizer.load_state_dict(folder.resumed.optimizer)
             start, history = folder.resumed.epoch, list(folder.resumed.history)
             samples = int(folder.resumed.extra["samples"])
-            precision.load_state_dict(folder.resumed.extra.get("grad_scaler", {}))
+            precision.restore(folder.resumed.extra)
         trained = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
         for epoch in range(start, config.epochs):
             rng = epoch_generator(config.seed, epoch)
@@ -390,7 +389,7 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
             row: dict[str, Any] = {"epoch": epoch + 1, "lr": schedule(config, samples)[0]}
             began = time.perf_counter()
             losses, samples = train_epoch(trained, optimizer, config, epoch, rng, generator, samples, device,
-                                          progress, unions, rank, world, precision)
+                                          progress, precision, unions, rank, world)
             row.update(losses, train_seconds=time.perf_counter() - began)
             if config.val_cache is not None and rank == 0:
                 row.update(validate(model, config, rng, generator, device))
@@ -403,8 +402,7 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
                                    extra={"samples": samples, "classes": list(config.classes),
                                           "mean_sizes": mean_sizes.tolist(), "train_counts": counts.tolist(),
                                           "train_union_frustums": sum(union_counts.values()),
-                                          "num_heading_bins": NUM_HEADING_BINS, "precision": precision.name,
-                                          "grad_scaler": precision.state_dict()}),
+                                          "num_heading_bins": NUM_HEADING_BINS, **precision.checkpoint_extra()}),
                         curves=(epoch + 1) % CURVES_EVERY == 0 or epoch + 1 == config.epochs)
     finish_distributed(world)
     return FPointNetResult(Path(out), history, mean_sizes, start, sum(p.numel() for p in model.parameters()),

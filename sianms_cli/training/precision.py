@@ -93,6 +93,14 @@ class MixedPrecision:
         if state and self.scaler.is_enabled():
             self.scaler.load_state_dict(state)
 
+    def checkpoint_extra(self) -> dict[str, Any]:
+        """What a checkpoint's ``extra`` keeps of the precision: its name and the loss scaler's state."""
+        return {"precision": self.name, "grad_scaler": self.state_dict()}
+
+    def restore(self, extra: dict[str, Any]) -> None:
+        """Continue with the loss scale of a checkpoint's ``extra`` (:meth:`checkpoint_extra`)."""
+        self.load_state_dict(extra.get("grad_scaler", {}))
+
 
 def float32_outputs(outputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     """``outputs`` with every floating tensor in float32 (losses are computed in float32)."""

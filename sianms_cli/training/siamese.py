@@ -152,8 +152,8 @@ def _tensor(features: np.ndarray, device: torch.device) -> torch.Tensor:
 
 
 def train_step(model: torch.nn.Module, optimizer: torch.optim.Optimizer, batch: PairingBatch,
-               config: SiameseConfig, device: torch.device, world: int = 1,
-               precision: MixedPrecision | None = None) -> dict[str, float]:
+               config: SiameseConfig, device: torch.device, precision: MixedPrecision,
+               world: int = 1) -> dict[str, float]:
     """One step of §IV-B on a batch (this rank's share of it); the summed terms and the mining counts.
 
     The candidates are scored with the current weights without gradients (no layer behaves
@@ -162,9 +162,8 @@ def train_step(model: torch.nn.Module, optimizer: torch.optim.Optimizer, batch: 
     the loss is scaled by ``world`` so the averaged gradient is that of eq. (6)'s sum over
     the global batch, as in one process; a rank whose share is empty still joins the
     gradient exchange with a zero loss. ``precision``: the forward passes' autocast and the
-    backward step (None: float32); distances and the loss are computed in float32.
+    backward step; distances and the loss are computed in float32.
     """
-    precision = precision or MixedPrecision("fp32", device)
     model.train()
     encoder = model.module if world > 1 else model
     k = len(batch)
@@ -191,8 +190,8 @@ def train_step(model: torch.nn.Module, optimizer: torch.optim.Optimizer, batch: 
 
 
 def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config: SiameseConfig,
-                device: torch.device, epoch: int, rank: int = 0, world: int = 1,
-                precision: MixedPrecision | None = None) -> dict[str, float]:
+                device: torch.device, precision: MixedPrecision, epoch: int, rank: int = 0,
+                world: int = 1) -> dict[str, float]:
     """One epoch over the training cache; the mean per reference of eq. (6) and its two terms.
 
     The epoch's generator deals the scenes to ``config.streams`` streams and pairs stream 0's;
@@ -210,7 +209,7 @@ def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config
     empty = PairingBatch.empty(cache_feature_shape(config.cache))
     for batch, _ in stream_steps(streams, PairingBatch.concatenate, empty, len,
                                  lambda count: row_counts(count, rank, world, device)):
-        for key, value in train_step(model, optimizer, batch, config, device, world, precision).items():
+        for key, value in train_step(model, optimizer, batch, config, device, precision, world).items():
             totals[key] += value
     totals = dict(zip(names, sum_over_ranks([totals[name] for name in names], device, world)))
     if totals["items"] == 0:
@@ -420,7 +419,7 @@ def run(config: SiameseConfig, out: str | Path, *, overwrite: bool = False, resu
             load_state(model, folder.resumed.model, folder.checkpoint_path)
             optimizer.load_state_dict(folder.resumed.optimizer)
             history, start = list(folder.resumed.history), folder.resumed.epoch
-            precision.load_state_dict(folder.resumed.extra.get("grad_scaler", {}))
+            precision.restore(folder.resumed.extra)
         trained = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
         reference = baseline(config.val_cache) if validating else {}
         dis_thr = (config.alpha + config.beta) / 2
@@ -433,7 +432,7 @@ def run(config: SiameseConfig, out: str | Path, *, overwrite: bool = False, resu
             lr = step_decay(config.lr, config.lr_decay, config.lr_step, epoch)
             set_learning_rate(optimizer, lr)
             row: dict[str, Any] = {"epoch": epoch + 1, "lr": lr,
-                                   **train_epoch(trained, optimizer, config, device, epoch, rank, world, precision)}
+                                   **train_epoch(trained, optimizer, config, device, precision, epoch, rank, world)}
             if validating:
                 row |= validate(model, config, device) | reference
                 dis_thr = row["val_dis_thr"]
@@ -442,8 +441,8 @@ def run(config: SiameseConfig, out: str | Path, *, overwrite: bool = False, resu
             folder.save(Checkpoint(kind=KIND, config=resolved, epoch=epoch + 1, model=model.state_dict(),
                                    optimizer=optimizer.state_dict(), history=history,
                                    extra={"dis_thr": dis_thr, "feature_shape": list(feature_shape),
-                                          "baseline": reference, "precision": precision.name,
-                                          "grad_scaler": precision.state_dict()}), curves=epoch + 1 == config.epochs)
+                                          "baseline": reference, **precision.checkpoint_extra()}),
+                        curves=epoch + 1 == config.epochs)
             epochs_run.append(epoch + 1)
             if on_epoch is not None and rank == 0:
                 on_epoch(row)
