@@ -1,9 +1,10 @@
-"""`sianms report`: an evaluation's Table I as Markdown, HTML and JSON; with --baseline, a regression gate."""
+"""`sianms report`: an evaluation's Table I as Markdown, HTML and JSON; with --baseline, a regression gate;
+of several evaluations (seeds), Table I over them with its spread and the paired differences."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
+from typing import List, Optional
 
 import typer
 
@@ -15,7 +16,9 @@ DEFAULT_ALLOWANCES_TEXT = "ap=0.5,ate=0.02,ase=0.5,aoe=0.02,reid=0.05"
 
 @command("report")
 def report_cli(
-    eval_folder: Path = typer.Argument(..., metavar="EVAL", help="A complete `sianms eval` output folder."),
+    evals: List[Path] = typer.Argument(..., metavar="EVAL", help="A complete `sianms eval` output folder; "
+                                                                    "several (or their report.json): a report over "
+                                                                    "runs, which needs --out."),
     baseline: Optional[Path] = typer.Option(None, help="Compare with this evaluation folder or report.json (a "
                                                        "report.json is what a repository commits for CI)."),
     max_drop: Optional[str] = typer.Option(None, help="Allowances over the defaults "
@@ -33,22 +36,47 @@ def report_cli(
 
     With --baseline, every Table I cell and re-identification figure is compared: exit code 1 when any
     regresses beyond its allowance (listed), 0 otherwise, 2 on bad input or differing configs.
+
+    Given several evaluations (seeds of one study), Table I over them as mean ± standard deviation and
+    the merging methods' paired differences from vanilla and Axis-NMS with a 95 % interval, into --out.
     """
     import json
 
-    from sianms_cli.reporting.report import ReportConfig, regression_lines, run
+    if len(evals) > 1:
+        report = _runs_report(evals, baseline, max_drop, force, out, overwrite, quiet)
+    else:
+        from sianms_cli.reporting.report import ReportConfig, run
 
-    config = ReportConfig(eval=str(eval_folder), baseline=None if baseline is None else str(baseline),
-                          max_drop=max_drop, force=force)
-    with ProgressBar(quiet) as bar:
-        report = run(config, out, overwrite=overwrite, progress=bar)
+        config = ReportConfig(eval=str(evals[0]), baseline=None if baseline is None else str(baseline),
+                              max_drop=max_drop, force=force)
+        with ProgressBar(quiet) as bar:
+            report = run(config, out, overwrite=overwrite, progress=bar)
     if as_json:
         typer.echo(json.dumps(report.content, indent=2, allow_nan=False))
     else:
         typer.echo(report.markdown)
         typer.echo(f"wrote {report.html}")
-    if report.regressions:
-        typer.echo(f"{len(report.regressions)} cell(s) regressed beyond the allowances:", err=True)
-        for line in regression_lines(report.regressions):
+    regressions = report.content.get("regressions", [])
+    if regressions:
+        from sianms_cli.reporting.report import regression_lines
+
+        typer.echo(f"{len(regressions)} cell(s) regressed beyond the allowances:", err=True)
+        for line in regression_lines(regressions):
             typer.echo(f"  {line}", err=True)
         raise typer.Exit(1)
+
+
+def _runs_report(evals: List[Path], baseline: Optional[Path], max_drop: Optional[str], force: bool,
+                 out: Optional[Path], overwrite: bool, quiet: bool):
+    from sianms_cli.errors import SianmsError
+    from sianms_cli.reporting.runs_report import RunsReportConfig, run
+
+    for flag, given in (("--baseline", baseline is not None), ("--max-drop", max_drop is not None),
+                        ("--force", force)):
+        if given:
+            raise SianmsError(f"{flag}: the gate compares one evaluation with its baseline; give one EVAL")
+    if out is None:
+        raise SianmsError("--out: a report over several runs has no EVAL folder of its own; name its folder")
+    config = RunsReportConfig(evals=tuple(str(folder) for folder in evals))
+    with ProgressBar(quiet) as bar:
+        return run(config, out, overwrite=overwrite, progress=bar)

@@ -57,6 +57,7 @@ from sianms_cli.reporting.eval_table import (
 from sianms_cli.reporting.report_html import Block, Figure, Heading, Paragraph, Table, render_html, render_markdown
 
 SCHEMA = "sianms-report"
+RUNS_SCHEMA = "sianms-runs-report"  # runs_report's; either kind of report folder may be replaced by the other
 SCHEMA_VERSION = 1
 REPORT_FILE = "report.json"
 DEFAULT_FOLDER = "report"  # inside the evaluation folder
@@ -203,7 +204,7 @@ def read_evaluation(folder: str | Path) -> dict[str, Any]:
     for stage, seconds in timings.items():
         if not _number(seconds):
             raise DataFormatError(marker_path, "must be a number of seconds", field=f"timings.{stage}")
-    return _strict({
+    return strict_json({
         "schema": SCHEMA, "schema_version": SCHEMA_VERSION, "eval": str(folder),
         "config": {**{name: config[name] for name in COMPARABLE_FIELDS}, "metrics": metrics_cfg},
         "fingerprints": {name: config[name] for name in FINGERPRINT_FIELDS},
@@ -284,14 +285,14 @@ def _nested(value: Any, *keys: str) -> Any:
     return value
 
 
-def _strict(value: Any) -> Any:
+def strict_json(value: Any) -> Any:
     """``value`` with every NaN or infinity, however nested, as None: report.json is strict JSON."""
     if isinstance(value, float):
         return value if math.isfinite(value) else None
     if isinstance(value, Mapping):
-        return {key: _strict(item) for key, item in value.items()}
+        return {key: strict_json(item) for key, item in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_strict(item) for item in value]
+        return [strict_json(item) for item in value]
     return value
 
 
@@ -534,12 +535,12 @@ def draw_figures(folder: Path, summary: Mapping[str, Any], eval_folder: Path, ou
 
 
 def is_report_folder(folder: Path) -> bool:
-    """Whether ``folder`` holds a ``report.json`` of this schema (so ``--overwrite`` may replace it)."""
+    """Whether ``folder`` holds a ``report.json`` of a report's schema (so ``--overwrite`` may replace it)."""
     try:
         content = read_json(folder / REPORT_FILE)
     except DataFormatError:
         return False
-    return isinstance(content, dict) and content.get("schema") == SCHEMA
+    return isinstance(content, dict) and content.get("schema") in (SCHEMA, RUNS_SCHEMA)
 
 
 def check_output(out: Path, overwrite: bool) -> None:
@@ -550,7 +551,7 @@ def check_output(out: Path, overwrite: bool) -> None:
         return
     if not is_report_folder(out):
         raise OutputExistsError(f"{out} is not empty and is not a sianms report (no {REPORT_FILE} of schema "
-                                f"'{SCHEMA}'); choose another --out")
+                                f"'{SCHEMA}' or '{RUNS_SCHEMA}'); choose another --out")
     if not overwrite:
         raise OutputExistsError(f"{out} holds a report; pass --overwrite to replace it")
     if is_inside_working_folder(out):
@@ -603,7 +604,7 @@ def run(config: ReportConfig, out: str | Path | None = None, *, overwrite: bool 
         blocks = document(summary, comparison, figures, notes)
         title = f"sianms report: {summary['eval']}"
         markdown = render_markdown(title, blocks)
-        content = _strict(content)
+        content = strict_json(content)
         write_text(staging / REPORT_FILE, json.dumps(content, indent=2, allow_nan=False) + "\n")
         write_text(staging / "report.md", markdown)
         write_text(staging / "report.html", render_html(title, blocks))

@@ -1,0 +1,321 @@
+"""`sianms report EVAL EVAL ...`: Table I over several runs (seeds), with its spread, and the paired
+differences that rank the methods.
+
+One run's Table I cannot rank methods whose figures differ by less than what another seed
+moves them. Runs of the same settings on other seeds (``sianms demo --seed S``) give the
+spread; and since the methods of one run share its data, detector and matcher, the
+*paired* difference of two methods, run by run, varies far less than either method's
+figure, so it is what ranks them. Every run is an evaluation folder or the ``report.json``
+`sianms report` wrote for it (what a study keeps once its 8 GB folders are gone).
+
+Written into ``--out`` (built in a hidden staging folder, moved into place when complete):
+
+- ``report.md`` / ``report.html``: the runs; Table I (car) over the runs as mean ± sample
+  standard deviation, an NMS family also at each run's best threshold, the paper's figures
+  beside and the ground-truth cars of each run; the paired differences of the merging methods
+  (siaNMS, hybrid, gated siaNMS, oracle) against vanilla and Axis-NMS in both regions, with a
+  95 % Student-t interval of the mean difference and the number of runs where the method did
+  better; re-identification over the runs.
+- ``report.json`` (``"schema": "sianms-runs-report"``): the same figures, and each run's value
+  of every cell and difference.
+
+The runs must have been evaluated alike (:data:`SHARED_FIELDS`: the same methods, NMS sweep,
+classes, distance and metrics config); their datasets and seeds differ, as a study's do. The
+same run given twice would fake a spread and is refused.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from sianms_cli.errors import SianmsError
+from sianms_cli.io import publish_folder, remove_folder, staging_folder, write_text
+from sianms_cli.progress import SILENT, Progress
+from sianms_cli.reporting.eval_table import COLUMNS, PAPER_TABLE_I, REGIONS_SHOWN, format_cell, format_ratio
+from sianms_cli.reporting.report import (
+    HIGHER_IS_BETTER,
+    REID_FIGURES,
+    RUNS_SCHEMA,
+    check_output,
+    read_baseline,
+    strict_json,
+)
+from sianms_cli.reporting.report_html import Block, Heading, Paragraph, Table, render_html, render_markdown
+
+SCHEMA_VERSION = 1
+SHARED_FIELDS = ("split", "methods", "nms_sweep", "axis_mode", "sianms_classes", "max_distance", "metrics")
+RUN_IDENTITY = ("dataset_sha256", "seed")  # with the fingerprints: what tells two runs apart
+MERGING_METHODS = ("sianms", "hybrid", "gated-sianms", "oracle")
+REFERENCES = ("vanilla", "axis-nms", "axis-nms (best)")
+BEST = " (best)"
+CONFIDENCE = 0.95
+
+
+@dataclass(frozen=True)
+class RunsReportConfig:
+    """The runs `sianms report` summarises: two or more evaluation folders or their ``report.json``."""
+
+    evals: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        evals = tuple(str(source) for source in self.evals)
+        if len(evals) < 2:
+            raise SianmsError("EVAL: a spread over runs needs at least two; one EVAL gets its own report")
+        if any(not source.strip() for source in evals):
+            raise SianmsError("EVAL: must not be empty")
+        object.__setattr__(self, "evals", evals)
+
+
+@dataclass(frozen=True)
+class RunsReport:
+    out: Path
+    content: dict[str, Any]
+    markdown: str
+
+    @property
+    def html(self) -> Path:
+        return self.out / "report.html"
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def read_runs(sources: Sequence[str]) -> list[dict[str, Any]]:
+    """Each run's report summary (:func:`report.read_baseline`), checked to be distinct runs evaluated alike.
+
+    Raises:
+        DataFormatError: a source is not a complete evaluation or a report.json.
+        SianmsError: two runs differ in a :data:`SHARED_FIELDS` field, or one run is given twice.
+    """
+    runs = [read_baseline(source) for source in sources]
+    first = runs[0]
+    for source, run in zip(sources[1:], runs[1:]):
+        differing = [name for name in SHARED_FIELDS if run["config"].get(name) != first["config"].get(name)]
+        if differing:
+            raise SianmsError(f"EVAL: {source} was evaluated otherwise than {sources[0]} (differs in: "
+                              f"{', '.join(differing)}); a spread is taken over runs evaluated alike")
+    seen: dict[tuple, str] = {}
+    for source, run in zip(sources, runs):
+        identity = (*(json.dumps(run["config"][name]) for name in RUN_IDENTITY),
+                    json.dumps(run["fingerprints"], sort_keys=True))
+        if identity in seen:
+            raise SianmsError(f"EVAL: {source} is the same run as {seen[identity]} (same dataset, seed, cache and "
+                              "checkpoints); each run may count once")
+        seen[identity] = source
+    return runs
+
+
+# --------------------------------------------------------------------------- statistics
+
+
+def spread(values: Sequence[float | None]) -> dict[str, Any]:
+    """Mean, sample standard deviation and 95 % Student-t interval of the mean over the runs with a figure.
+
+    ``values`` keeps one entry per run (None where a run has no figure there); the statistics
+    use the others, ``n`` says how many. With one figure there is no spread (sd and interval None).
+    """
+    from scipy.stats import t
+
+    present = np.array([v for v in values if v is not None], dtype=float)
+    n = len(present)
+    mean = float(present.mean()) if n else None
+    sd = float(present.std(ddof=1)) if n >= 2 else None
+    half = None if sd is None else float(t.ppf(0.5 + CONFIDENCE / 2, n - 1) * sd / math.sqrt(n))
+    return {"mean": mean, "sd": sd, "ci95": None if half is None else [mean - half, mean + half], "n": n,
+            "values": list(values)}
+
+
+def method_rows(runs: Sequence[Mapping[str, Any]]) -> list[str]:
+    """Table I's rows: every method, and each NMS family again at its best threshold in each run."""
+    methods = list(runs[0]["methods"])
+    best = [family + BEST for family in runs[0]["best_nms"] if all(family in run["best_nms"] for run in runs)]
+    rows = []
+    for method in methods:
+        rows.append(method)
+        rows += [family for family in best if family == method + BEST]
+    return rows
+
+
+def figure(run: Mapping[str, Any], region: str, method: str, column: str) -> float | None:
+    """One run's figure of a Table I cell; ``"<family> (best)"`` reads that run's best threshold of the family."""
+    if method.endswith(BEST):
+        method = run["best_nms"][method.removesuffix(BEST)]
+    return run["regions"][region][method][run["table_class"]][column]
+
+
+def table_cells(runs: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, dict[str, Any]]]:
+    """{region: {method: {column: spread}}} for every Table I cell, and the ground-truth cars per run."""
+    return {region: {method: {**{column: spread([figure(run, region, method, column) for run in runs])
+                                 for column in COLUMNS},
+                              "gt": [figure(run, region, method, "gt") for run in runs]}
+                     for method in method_rows(runs)}
+            for region, _ in REGIONS_SHOWN}
+
+
+def paired_differences(runs: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Each merging method minus each reference, run by run, per region and column.
+
+    A run counts where both methods have a figure; ``better`` counts the runs where the method
+    did better (higher AP, lower errors), ties counting neither way.
+    """
+    rows = method_rows(runs)
+    out = []
+    for method in (m for m in MERGING_METHODS if m in rows):
+        for reference in (r for r in REFERENCES if r in rows):
+            for region, _ in REGIONS_SHOWN:
+                entry: dict[str, Any] = {"method": method, "reference": reference, "region": region}
+                for column in COLUMNS:
+                    pairs = [(figure(run, region, method, column), figure(run, region, reference, column))
+                             for run in runs]
+                    differences = [None if a is None or b is None else a - b for a, b in pairs]
+                    sign = 1.0 if column in HIGHER_IS_BETTER else -1.0
+                    entry[column] = {**spread(differences),
+                                     "better": sum(1 for d in differences if d is not None and sign * d > 0)}
+                out.append(entry)
+    return out
+
+
+def reidentification(runs: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Each matcher every run evaluated: precision, recall and F1 over the runs, true pairs per run."""
+    evaluated = [m for m in runs[0]["reidentification"] if all(m in run["reidentification"] for run in runs)]
+    matchers = sorted(evaluated, key=lambda m: runs[0]["methods"].index(m) if m in runs[0]["methods"] else len(evaluated))
+    return {matcher: {**{name: spread([run["reidentification"][matcher].get(name) for run in runs])
+                         for name in REID_FIGURES},
+                      "pairs_true": [run["reidentification"][matcher].get("pairs_true") for run in runs]}
+            for matcher in matchers}
+
+
+# --------------------------------------------------------------------------- the document
+
+
+def _digits(column: str) -> int:
+    return 1 if column in ("AP", "ASE") else 3
+
+
+def _signed(value: float, digits: int) -> str:
+    """``value`` with its sign, and no "-0.0" for a difference that rounds to nothing."""
+    text = f"{value:+.{digits}f}"
+    return f"{0.0:+.{digits}f}" if float(text) == 0 else text
+
+
+def _plus_minus(stats: Mapping[str, Any], column: str, signed: bool = False) -> str:
+    if stats["mean"] is None:
+        return "-"
+    digits = _digits(column)
+    mean = _signed(stats["mean"], digits) if signed else f"{stats['mean']:.{digits}f}"
+    return mean if stats["sd"] is None else f"{mean} ± {stats['sd']:.{digits}f}"
+
+
+def _interval(stats: Mapping[str, Any], column: str) -> str:
+    if stats["ci95"] is None:
+        return "-"
+    low, high = stats["ci95"]
+    return f"[{_signed(low, _digits(column))}, {_signed(high, _digits(column))}]"
+
+
+def document(content: Mapping[str, Any]) -> list[Block]:
+    runs, name = content["runs"], content["table_class"]
+    n = len(runs)
+    blocks: list[Block] = [
+        Heading(f"{n} runs"),
+        Table("runs", ["run", "source", "seed", "dataset", "GT cars, all", "GT cars, overlap"],
+              [[str(i), run["source"], str(run["seed"]), run["dataset_sha256"][:12], str(run["gt"]["all"]),
+                str(run["gt"]["overlap"])] for i, run in enumerate(runs)], labels=2)]
+    header = ["region", "method", *COLUMNS, *(f"paper {c}" for c in COLUMNS), "GT boxes per run"]
+    rows = []
+    for region, label in REGIONS_SHOWN:
+        for method, cells in content["cells"][region].items():
+            paper = PAPER_TABLE_I[label].get(method)
+            rows.append([label, method, *(_plus_minus(cells[c], c) for c in COLUMNS),
+                         *(format_cell(paper[i] if paper else None, c) for i, c in enumerate(COLUMNS)),
+                         ", ".join(str(gt) for gt in cells["gt"])])
+    blocks += [Heading(f"Table I over the runs ({name})"),
+               Paragraph(f"Mean ± sample standard deviation over the {n} runs (AP and ASE in %, ATE in m, AOE in "
+                         "rad). `(best)`: the family at the threshold with the best car AP of each run, which may "
+                         "differ between runs. The paper's figures (F-PointNets on the real nuScenes validation set) "
+                         "are beside for orientation only."),
+               Table("table-i", header, rows, labels=2)]
+    header = ["comparison", "region", *(f"{c} difference" for c in COLUMNS), "AP 95 % interval", "AP better in"]
+    rows = []
+    for entry in content["paired_differences"]:
+        ap = entry["AP"]
+        rows.append([f"{entry['method']} − {entry['reference']}", dict(REGIONS_SHOWN)[entry["region"]],
+                     *(_plus_minus(entry[c], c, signed=True) for c in COLUMNS), _interval(ap, "AP"),
+                     f"{ap['better']} of {ap['n']}"])
+    if rows:
+        blocks += [Heading("Paired differences"),
+                   Paragraph("A method minus a reference in each run, then mean ± sample standard deviation over "
+                             "the runs: the methods of one run share its data, detector and matcher, so this is what "
+                             "ranks them. The interval is the 95 % Student-t interval of the mean difference; "
+                             "*better in* counts the runs where the method's AP was higher. Each run's differences, "
+                             "and the intervals of the error columns, are in report.json."),
+                   Table("paired-differences", header, rows, labels=2)]
+    reid = content["reidentification"]
+    if reid:
+        blocks += [Heading("Re-identification over the runs"),
+                   Table("reidentification", ["matcher", *REID_FIGURES, "true pairs per run"],
+                         [[matcher, *(_ratio_spread(figures[f]) for f in REID_FIGURES),
+                           ", ".join(str(p) for p in figures["pairs_true"])] for matcher, figures in reid.items()])]
+    return blocks
+
+
+def _ratio_spread(stats: Mapping[str, Any]) -> str:
+    if stats["mean"] is None:
+        return "-"
+    return format_ratio(stats["mean"]) + ("" if stats["sd"] is None else f" ± {format_ratio(stats['sd'])}")
+
+
+# --------------------------------------------------------------------------- the command
+
+
+def summarize(sources: Sequence[str], runs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """report.json's content for ``runs`` read from ``sources``."""
+    first = runs[0]
+    return strict_json({
+        "schema": RUNS_SCHEMA, "schema_version": SCHEMA_VERSION, "table_class": first["table_class"],
+        "config": {name: first["config"][name] for name in SHARED_FIELDS},
+        "runs": [{"source": source, "eval": run["eval"], **{name: run["config"][name] for name in RUN_IDENTITY},
+                  "split_scenes": run["config"]["split_scenes"], "fingerprints": run["fingerprints"],
+                  "gt": {region: figure(run, region, run["methods"][0], "gt") for region, _ in REGIONS_SHOWN}}
+                 for source, run in zip(sources, runs)],
+        "cells": table_cells(runs),
+        "paired_differences": paired_differences(runs),
+        "reidentification": reidentification(runs),
+    })
+
+
+def run(config: RunsReportConfig, out: str | Path, *, overwrite: bool = False,
+        progress: Progress = SILENT) -> RunsReport:
+    """Read the runs, summarise them and write ``out`` atomically (module docstring).
+
+    Raises:
+        DataFormatError: a run is not a complete evaluation or a report.json.
+        SianmsError: the runs were evaluated otherwise, or one is given twice.
+        OutputExistsError: ``out`` may not be replaced (only a report folder, with ``overwrite``).
+    """
+    out = Path(out)
+    check_output(out, overwrite)
+    progress.start(2, "step", "report")
+    runs = read_runs(config.evals)
+    content = summarize(config.evals, runs)
+    progress.advance()
+    blocks = document(content)
+    title = f"sianms report: {len(runs)} runs"
+    markdown = render_markdown(title, blocks)
+    staging = staging_folder(out)
+    try:
+        write_text(staging / "report.json", json.dumps(content, indent=2, allow_nan=False) + "\n")
+        write_text(staging / "report.md", markdown)
+        write_text(staging / "report.html", render_html(title, blocks))
+        published = publish_folder(staging, out)
+    except BaseException:
+        remove_folder(staging)
+        raise
+    progress.advance()
+    return RunsReport(published, content, markdown)
