@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import os
 from typing import Callable
 
 import typer
@@ -82,30 +83,41 @@ class ProgressBar:
             self.bar.close()
 
 
+def follower_rank() -> int | None:
+    """This process's rank when it is a non-zero rank under torchrun (which sets RANK), else None."""
+    rank = os.environ.get("RANK", "0")
+    return None if rank == "0" else int(rank) if rank.isdigit() else None
+
+
 def command(name: str, group: typer.Typer | None = None) -> Callable[[Callable], Callable]:
     """Register a subcommand (of ``group``, default the root) whose failures end in one
     ``error:`` line, never a traceback.
 
     A user error or an OS error (read-only folder, disk full, a folder where a file should
     be) exits with code 2; an interrupt with 130 (SIGINT) or 143 (SIGTERM), after the
-    library's cleanup has run.
+    library's cleanup has run. Under torchrun every rank stops with the same code, but only
+    rank 0 says it was interrupted (torchrun signals them all at once), and another rank's
+    error line names its rank (it may be its own: a shard only it reads).
     """
 
     def register(function: Callable) -> Callable:
         @functools.wraps(function)
         def run(*args, **kwargs):
+            rank = follower_rank()
+            prefix = "error: " if rank is None else f"error: rank {rank}: "
             try:
                 return function(*args, **kwargs)
             except SianmsError as error:
-                typer.echo(f"error: {error}", err=True)
+                typer.echo(f"{prefix}{error}", err=True)
                 raise typer.Exit(error.exit_code) from None
             except OSError as error:
-                typer.echo(f"error: {describe_os_error(error)}", err=True)
+                typer.echo(f"{prefix}{describe_os_error(error)}", err=True)
                 raise typer.Exit(2) from None
             except KeyboardInterrupt as interrupt:
                 terminated = isinstance(interrupt, Terminated)
-                typer.echo(f"interrupted ({'SIGTERM' if terminated else 'SIGINT'}); "
-                           "finished outputs are kept, a rerun resumes or starts afresh", err=True)
+                if rank is None:
+                    typer.echo(f"interrupted ({'SIGTERM' if terminated else 'SIGINT'}); "
+                               "finished outputs are kept, a rerun resumes or starts afresh", err=True)
                 raise typer.Exit(143 if terminated else 130) from None
 
         return (app if group is None else group).command(name)(run)

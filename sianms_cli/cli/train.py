@@ -7,14 +7,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import sys
 from pathlib import Path
 from typing import Any, Callable, Optional
 
 import typer
 
-from sianms_cli.cli._app import ProgressBar, command, command_group
+from sianms_cli.cli._app import ProgressBar, command, command_group, follower_rank
 
 train_app = command_group("train", "Train the paper's networks on a prepared cache (`sianms prepare`).")
 
@@ -49,11 +48,6 @@ def _use_threads(threads: int | None) -> None:
 def train_command(name: str) -> Callable[[Callable], Callable]:
     """Register ``sianms train NAME`` with :func:`command`'s error handling (one ``error:`` line, exit 2)."""
     return command(name, train_app)
-
-
-def _follower() -> bool:
-    """A non-zero rank under torchrun: it trains but only rank 0 reports."""
-    return os.environ.get("RANK", "0") != "0"
 
 
 def _widths(text: str, flag: str) -> tuple[int, ...]:
@@ -127,7 +121,7 @@ def siamese_cli(
     from sianms_cli.training.siamese import SiameseConfig, parse_dims, run, sweep, sweep_markdown
 
     _use_threads(threads)
-    follower = _follower()
+    follower = follower_rank() is not None
     quiet = quiet or follower
     config = SiameseConfig(
         cache=str(cache), val_cache=None if val_cache is None else str(val_cache), dim=dim,
@@ -225,7 +219,7 @@ def fpointnet_cli(
     from sianms_cli.training.fpointnet import FPointNetConfig, run
 
     _use_threads(threads)
-    follower = _follower()
+    follower = follower_rank() is not None
     quiet = quiet or follower
     config = FPointNetConfig(
         cache=str(cache), val_cache=None if val_cache is None else str(val_cache),
