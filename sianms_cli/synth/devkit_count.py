@@ -21,7 +21,10 @@ from __future__ import annotations
 import numpy as np
 
 _UNIT_TOLERANCE = 1e-14  # pyquaternion is_unit
-_CHUNK_POINTS = 2_000_000  # boxes x points evaluated at once (tens of MB of float64)
+_CELL = 2.0  # metres: the grid columns that find the points near a box
+_BOUNDS_MARGIN = 1e-3
+"""Metres around a box's corners within which its candidate points are taken: a point the
+devkit counts lies inside the box up to rounding (1e-12 m here), far inside this margin."""
 
 
 def _q_matrix(q: np.ndarray) -> np.ndarray:
@@ -81,17 +84,56 @@ def count_points_in_boxes(points_sensor: np.ndarray, corners: np.ndarray) -> np.
 
     points_sensor (P,3) float32 as the file holds them; corners (N,3,8) from
     :func:`boxes_in_sensor_frame`. A point inside two boxes counts for both.
+
+    Only the points near a box (:func:`_candidate_pairs`) are tested, with the devkit's
+    arithmetic: the point widened to float64 minus the corner, projected on each edge, and
+    compared with the edge's squared length. The projections are written out as products
+    and sums, whose rounding is the same on every CPU, where a BLAS product's is not.
     """
-    points = np.asarray(points_sensor, np.float32).T  # (3, P), as LidarPointCloud.points[:3]
+    points = np.asarray(points_sensor, np.float32)
+    corners = np.asarray(corners, np.float64)
+    box, point = _candidate_pairs(points, corners)
     p1 = corners[:, :, 0]
     axes = np.stack([corners[:, :, 4] - p1, corners[:, :, 1] - p1, corners[:, :, 3] - p1], axis=1)  # (N, 3 axes, 3)
     limits = np.einsum("nak,nak->na", axes, axes)
-    counts = np.zeros(len(corners), np.int64)
-    per_chunk = max(1, _CHUNK_POINTS // max(points.shape[1], 1))
-    for start in range(0, len(corners), per_chunk):
-        sl = slice(start, start + per_chunk)
-        v = points[None, :, :] - p1[sl, :, None]  # float32 - float64 -> float64, (n, 3, P)
-        projection = axes[sl] @ v  # (n, 3 axes, P)
-        inside = ((projection >= 0) & (projection <= limits[sl, :, None])).all(axis=1)
-        counts[sl] = inside.sum(axis=1)
-    return counts
+    v = points[point].astype(np.float64) - p1[box]  # (M, 3)
+    a = axes[box]
+    projection = a[:, :, 0] * v[:, None, 0] + a[:, :, 1] * v[:, None, 1] + a[:, :, 2] * v[:, None, 2]
+    inside = ((projection >= 0) & (projection <= limits[box])).all(axis=1)
+    return np.bincount(box[inside], minlength=len(corners)).astype(np.int64)
+
+
+def _candidate_pairs(points: np.ndarray, corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(box, point) index pairs of the points inside each box's axis-aligned bounds grown by
+    :data:`_BOUNDS_MARGIN`: a superset of the points the devkit's test can count.
+
+    The points are sorted into a grid of :data:`_CELL` metre columns in x and y; a box's
+    bounds cover a few grid columns, in each of which its points are one contiguous run of
+    the sorted order, so the cost follows the points near boxes, not boxes x points.
+    """
+    empty = np.zeros(0, np.int64)
+    if len(points) == 0 or len(corners) == 0:
+        return empty, empty
+    xyz = points.astype(np.float64)
+    cell = np.floor(xyz[:, :2] / _CELL).astype(np.int64)
+    first = cell.min(axis=0)
+    cell -= first
+    rows = int(cell[:, 1].max()) + 1
+    key = cell[:, 0] * rows + cell[:, 1]
+    order = np.argsort(key, kind="stable")
+    sorted_key = key[order]
+    low = corners.min(axis=2) - _BOUNDS_MARGIN
+    high = corners.max(axis=2) + _BOUNDS_MARGIN
+    low_cell = np.floor(low[:, :2] / _CELL).astype(np.int64) - first
+    high_cell = np.floor(high[:, :2] / _CELL).astype(np.int64) - first
+    low_cell, high_cell = np.maximum(low_cell, 0), np.minimum(high_cell, [int(cell[:, 0].max()), rows - 1])
+    columns = np.maximum(high_cell[:, 0] - low_cell[:, 0] + 1, 0) * (high_cell[:, 1] >= low_cell[:, 1])
+    column_box = np.repeat(np.arange(len(corners)), columns)
+    column = low_cell[column_box, 0] + np.arange(len(column_box)) - np.repeat(np.cumsum(columns) - columns, columns)
+    start = np.searchsorted(sorted_key, column * rows + low_cell[column_box, 1], side="left")
+    stop = np.searchsorted(sorted_key, column * rows + high_cell[column_box, 1], side="right")
+    length = stop - start
+    box = np.repeat(column_box, length)
+    point = order[np.arange(len(box)) - np.repeat(np.cumsum(length) - length - start, length)]
+    near = np.all((xyz[point] >= low[box]) & (xyz[point] <= high[box]), axis=1)
+    return box[near], point[near]
