@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from sianms_cli.synth import shapes
@@ -167,41 +168,121 @@ def candidate_pairs(parts: Parts, origin: np.ndarray, level: np.ndarray, inflate
     return ray, part
 
 
-def _nearest_hits(ray, part, origins, dirs, parts: Parts, t_max, shift):
-    """Nearest part hit per ray over candidate (ray, part) pairs, in bounded slices.
+@dataclass(frozen=True)
+class PartMotion:
+    """Parts that move while the sensor sweeps: velocity (M,3) global m/s of each part and
+    ray_seconds (R,) each ray's firing time minus the sweep's reference time. A ray meets a
+    part where the part is when the ray fires: its origin moves by minus the displacement."""
+
+    velocity: np.ndarray
+    ray_seconds: np.ndarray
+
+    def shift(self, rr: np.ndarray, pp: np.ndarray) -> np.ndarray:
+        """(K,3) displacement of parts pp at the firing times of rays rr."""
+        return self.velocity[pp] * self.ray_seconds[rr, None]
+
+
+def _nearest_hits(ray, part, origins, dirs, parts: Parts, t_max, motion: PartMotion | None):
+    """Nearest part hit per ray over candidate (ray, part) pairs.
 
     origins (R,3) relative to the sweep's reference origin and parts' centres likewise (so
-    float32 keeps sub-millimetre precision within the LiDAR's range); shift(ray, part) ->
-    (K,3) or None moves each ray's origin by minus the part's displacement (parts that move
-    while the sensor sweeps). Returns t (R,) float64 (inf = none), part (R,) (-1 = none)
-    and the unit outward normal (R,3) of the face hit, global frame; the face is found for
-    the winning pairs only (the slab entered last, as raycast.intersect_boxes does).
+    float32 keeps sub-millimetre precision within the LiDAR's range); motion moves each ray's
+    origin by minus its part's displacement (parts that move while the sensor sweeps). Returns
+    t (R,) float64 (inf = none), part (R,) (-1 = none) and the unit outward normal (R,3) of the
+    face hit, global frame; the face is found for the winning pairs only (the slab entered
+    last, as raycast.intersect_boxes does).
     """
-    f32 = np.float32
-    r = len(dirs)
-    t_best = np.full(r, np.inf, f32)
-    part_best = np.full(r, -1, np.int64)
+    half = parts.half_size.astype(np.float32)
     c, s = np.cos(parts.yaw), np.sin(parts.yaw)
-    half = parts.half_size.astype(f32)
-    for start in range(0, len(ray), _MAX_PAIRS):
-        rr, pp = ray[start:start + _MAX_PAIRS], part[start:start + _MAX_PAIRS]
-        t = _pair_entry(rr, pp, origins, dirs, parts.center, half, c, s, shift, t_max)
-        hit = np.isfinite(t)
-        rr, pp, t = rr[hit], pp[hit], t[hit]
-        t_new = t_best.copy()
-        np.minimum.at(t_new, rr, t)
-        win = (t == t_new[rr]) & (t < t_best[rr])
-        part_best[rr[win]] = pp[win]  # of equally near parts of one ray the last one wins
-        t_best = t_new
+    moving = motion is not None
+    velocity = motion.velocity if moving else np.zeros((0, 3))
+    seconds = motion.ray_seconds if moving else np.zeros(0)
+    t_best, part_best = _nearest_entries(ray, part, origins, dirs, parts.center, half, c, s, moving, velocity,
+                                         seconds, t_max, np.float32(T_MIN), _MAX_PAIRS)
     rays = np.flatnonzero(part_best >= 0)
-    normal = np.zeros((r, 3))
-    normal[rays] = _face_normal(rays, part_best[rays], origins, dirs, parts.center, half, c, s, shift)
+    normal = np.zeros((len(dirs), 3))
+    normal[rays] = _face_normal(rays, part_best[rays], origins, dirs, parts.center, half, c, s, motion)
     return t_best.astype(np.float64), part_best, normal
 
 
-def _local_rays(rr, pp, origins, dirs, center, c, s, shift):
+@numba.njit(cache=True, error_model="numpy")
+def _nearest_entries(ray, part, origins, dirs, center, half, cos, sin, moving, velocity, seconds, t_max, t_min,
+                     chunk):
+    """Per ray, the float32 parameter where it enters its nearest part of the pairs, and that part.
+
+    The arithmetic of :func:`_pair_entry`, pair by pair: the ray's origin and direction in
+    the part's frame in float64, rounded to float32, then :func:`raycast.slab_interval` in
+    float32 with numpy's NaN-propagating minimum and maximum (no fused multiply-add: numba
+    contracts nothing unless told to), so the result is numpy's to the bit. Pairs are taken in
+    chunks of ``chunk``, as numpy takes them to bound its memory: of equally near parts of one
+    ray, the last pair of the first chunk holding the nearest entry wins.
+    """
+    n_rays = dirs.shape[0]
+    t_best = np.full(n_rays, np.inf, np.float32)
+    part_best = np.full(n_rays, -1, np.int64)
+    chunk_min = np.full(n_rays, np.inf, np.float32)
+    entry = np.empty(min(chunk, len(ray)), np.float32)
+    inf = np.float32(np.inf)
+    for start in range(0, len(ray), chunk):
+        stop = min(start + chunk, len(ray))
+        for i in range(start, stop):
+            r, p = ray[i], part[i]
+            o0, o1, o2 = origins[r, 0] - center[p, 0], origins[r, 1] - center[p, 1], origins[r, 2] - center[p, 2]
+            if moving:
+                o0 = o0 - velocity[p, 0] * seconds[r]
+                o1 = o1 - velocity[p, 1] * seconds[r]
+                o2 = o2 - velocity[p, 2] * seconds[r]
+            cp, sp = cos[p], sin[p]
+            local_o = (np.float32(cp * o0 + sp * o1), np.float32(cp * o1 - sp * o0), np.float32(o2))
+            local_d = (np.float32(cp * dirs[r, 0] + sp * dirs[r, 1]), np.float32(cp * dirs[r, 1] - sp * dirs[r, 0]),
+                       np.float32(dirs[r, 2]))
+            t_near, t_far = _slab(-half[p, 0] - local_o[0], half[p, 0] - local_o[0], local_d[0], -inf, inf)
+            t_near, t_far = _slab(-half[p, 1] - local_o[1], half[p, 1] - local_o[1], local_d[1], t_near, t_far)
+            t_near, t_far = _slab(-half[p, 2] - local_o[2], half[p, 2] - local_o[2], local_d[2], t_near, t_far)
+            t = t_near if (t_near <= t_far) and (t_near > t_min) and (t_near < t_max[r]) else inf
+            entry[i - start] = t
+            if t < chunk_min[r]:
+                chunk_min[r] = t
+        for i in range(start, stop):
+            r, t = ray[i], entry[i - start]
+            if t < inf and t == chunk_min[r] and t < t_best[r]:
+                part_best[r] = part[i]
+        for i in range(start, stop):
+            r = ray[i]
+            if chunk_min[r] < t_best[r]:
+                t_best[r] = chunk_min[r]
+            chunk_min[r] = inf
+    return t_best, part_best
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _slab(lower, upper, d, t_near, t_far):
+    """One axis of :func:`raycast.slab_interval` (float32), narrowing (t_near, t_far); the first
+    axis passes (-inf, inf), which leaves its own bounds, as numpy's first axis does."""
+    inv = np.float32(1.0) / d
+    t1, t2 = lower * inv, upper * inv
+    return _maximum(t_near, _minimum(t1, t2)), _minimum(t_far, _maximum(t1, t2))
+
+
+@numba.njit(cache=True)
+def _minimum(a, b):
+    """numpy.minimum: NaN if either is NaN."""
+    if a != a or b != b:
+        return a if a != a else b
+    return a if a <= b else b
+
+
+@numba.njit(cache=True)
+def _maximum(a, b):
+    """numpy.maximum: NaN if either is NaN."""
+    if a != a or b != b:
+        return a if a != a else b
+    return a if a >= b else b
+
+
+def _local_rays(rr, pp, origins, dirs, center, c, s, motion):
     """Origins and directions of rays rr in the frames of parts pp (float32 per axis)."""
-    o = origins[rr] - center[pp] if shift is None else origins[rr] - center[pp] - shift(rr, pp)
+    o = origins[rr] - center[pp] if motion is None else origins[rr] - center[pp] - motion.shift(rr, pp)
     d = dirs[rr]
     cp, sp = c[pp], s[pp]
     f32 = np.float32
@@ -212,23 +293,16 @@ def _local_rays(rr, pp, origins, dirs, center, c, s, shift):
     return local_o, local_d
 
 
-def _pair_slabs(rr, pp, origins, dirs, center, half, c, s, shift):
+def _pair_slabs(rr, pp, origins, dirs, center, half, c, s, motion):
     """raycast.slab_interval of rays rr against parts pp, and the rays' local directions."""
-    o, d = _local_rays(rr, pp, origins, dirs, center, c, s, shift)
+    o, d = _local_rays(rr, pp, origins, dirs, center, c, s, motion)
     h = [half[pp, k] for k in range(3)]
     return slab_interval([-h_k - o_k for h_k, o_k in zip(h, o)], [h_k - o_k for h_k, o_k in zip(h, o)], d), d
 
 
-def _pair_entry(rr, pp, origins, dirs, center, half, c, s, shift, t_max):
-    """Ray parameter where each ray enters its paired part (float32, inf for a miss)."""
-    (t_near, t_far, _), _ = _pair_slabs(rr, pp, origins, dirs, center, half, c, s, shift)
-    ok = (t_near <= t_far) & (t_near > np.float32(T_MIN)) & (t_near < t_max[rr])
-    return np.where(ok, t_near, np.float32(np.inf))
-
-
-def _face_normal(rr, pp, origins, dirs, center, half, c, s, shift):
+def _face_normal(rr, pp, origins, dirs, center, half, c, s, motion):
     """Global unit outward normal of the face each ray enters its part through."""
-    (_, _, t_lo), d = _pair_slabs(rr, pp, origins, dirs, center, half, c, s, shift)
+    (_, _, t_lo), d = _pair_slabs(rr, pp, origins, dirs, center, half, c, s, motion)
     axis = np.argmax(np.stack(t_lo, axis=1), axis=1)
     sign = np.where(np.take_along_axis(np.stack(d, axis=1), axis[:, None], 1)[:, 0] > 0, -1.0, 1.0)
     n_local = np.zeros((len(rr), 3))
@@ -404,11 +478,10 @@ def scan_lidar(parts: Parts, lidar_to_world, rng: np.random.Generator, ground_re
     level = _level_frame(reference)
     spread = np.linalg.norm(origins, axis=1).max()
     inflate = np.full(len(parts), spread + 1e-3)
-    shift = None
+    motion = None
     if part_velocity is not None and len(parts):
         inflate += np.linalg.norm(part_velocity, axis=1) * np.abs(column_seconds).max()
-        ray_seconds = np.repeat(column_seconds, beams)
-        shift = lambda rr, pp: part_velocity[pp] * ray_seconds[rr, None]  # noqa: E731
+        motion = PartMotion(np.asarray(part_velocity, np.float64), np.repeat(column_seconds, beams))
     az_margin, el_margin = _direction_margins(dirs, level, start_azimuth, azimuth_steps)
     ray, part = candidate_pairs(parts, reference[:3, 3], level, inflate, start_azimuth, azimuth_steps,
                                 az_margin, el_margin)
@@ -417,7 +490,7 @@ def scan_lidar(parts: Parts, lidar_to_world, rng: np.random.Generator, ground_re
     reach = np.linalg.norm(center, axis=1) - parts.bounding_radius() - inflate
     keep = reach[part] <= t_max[ray]  # parts beyond the ray's ground hit are never tested
     t_part, part_hit, normal = _nearest_hits(ray[keep], part[keep], origins, dirs,
-                                             dataclasses.replace(parts, center=center), t_max.astype(np.float32), shift)
+                                             dataclasses.replace(parts, center=center), t_max.astype(np.float32), motion)
     on_part = t_part < t_ground
     t = np.where(on_part, t_part, t_ground)
     hit = np.isfinite(t) & (t >= min_range)

@@ -182,3 +182,54 @@ def test_a_moving_part_is_where_it_is_when_its_column_fires():
     column = np.round((start - np.arctan2(p[:, 1], p[:, 0])) / (2 * np.pi / steps)).astype(int) % steps
     np.testing.assert_allclose(p[:, 0], 10.0 + speed * seconds[column], atol=1e-4)
     assert np.ptp(p[:, 0]) > 0.1  # the sweep smears it
+
+
+def numpy_nearest_entries(ray, part, origins, dirs, parts: Parts, t_max, motion, chunk):
+    """The nearest entry per ray with numpy's arrays (raycast.slab_interval on every pair), chunk by chunk:
+    what lidar._nearest_entries must equal to the bit, ties included."""
+    half = parts.half_size.astype(np.float32)
+    c, s = np.cos(parts.yaw), np.sin(parts.yaw)
+    t_best = np.full(len(dirs), np.inf, np.float32)
+    part_best = np.full(len(dirs), -1, np.int64)
+    for start in range(0, len(ray), chunk):
+        rr, pp = ray[start:start + chunk], part[start:start + chunk]
+        (t_near, t_far, _), _ = lidar._pair_slabs(rr, pp, origins, dirs, parts.center, half, c, s, motion)
+        t = np.where((t_near <= t_far) & (t_near > np.float32(1e-4)) & (t_near < t_max[rr]), t_near, np.inf)
+        hit = np.isfinite(t)
+        rr, pp, t = rr[hit], pp[hit], t[hit]
+        t_new = t_best.copy()
+        np.minimum.at(t_new, rr, t)
+        win = (t == t_new[rr]) & (t < t_best[rr])
+        part_best[rr[win]] = pp[win]
+        t_best = t_new
+    return t_best, part_best
+
+
+@pytest.mark.parametrize("moving", [False, True])
+def test_nearest_entries_equal_numpys_to_the_bit_with_ties_and_chunks(moving):
+    rng = np.random.default_rng(5)
+    count = 300
+    parts = boxes(rng, count)
+    # Stacks of equal boxes (a composite object's coplanar faces) make rays meet parts at the same t.
+    parts = Parts(np.concatenate([parts.center, parts.center[:50]]), np.concatenate([parts.half_size,
+                  parts.half_size[:50]]), np.concatenate([parts.yaw, parts.yaw[:50]]),
+                  np.arange(count + 50), np.zeros(count + 50, int))
+    steps = 360
+    dirs, _ = lidar.beam_directions(steps, 0.2)
+    origins = rng.normal(0.0, 0.05, (len(dirs), 3))
+    every_ray, every_part = (a.ravel() for a in np.meshgrid(np.arange(len(dirs)), np.arange(len(parts)),
+                                                             indexing="ij"))
+    chosen = rng.uniform(size=len(every_ray)) < 0.3
+    ray, part = every_ray[chosen], every_part[chosen]
+    t_max = np.full(len(dirs), np.float32(45.0))
+    motion = lidar.PartMotion(rng.normal(0.0, 8.0, (len(parts), 3)), rng.uniform(-0.05, 0.0, len(dirs))) \
+        if moving else None
+    chunk = 7_919  # a prime: chunk boundaries fall between the pairs of one ray
+    expected = numpy_nearest_entries(ray, part, origins, dirs, parts, t_max, motion, chunk)
+    half = parts.half_size.astype(np.float32)
+    got = lidar._nearest_entries(ray, part, origins, dirs, parts.center, half, np.cos(parts.yaw), np.sin(parts.yaw),
+                                 moving, motion.velocity if moving else np.zeros((0, 3)),
+                                 motion.ray_seconds if moving else np.zeros(0), t_max, np.float32(1e-4), chunk)
+    assert (expected[1] >= 0).sum() > 500 and (expected[1] >= count).sum() > 20  # the copies win some rays
+    np.testing.assert_array_equal(got[0], expected[0])
+    np.testing.assert_array_equal(got[1], expected[1])
