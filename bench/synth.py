@@ -11,10 +11,16 @@ own) and prints, next to the absolute figures, two ratios measured in the same r
   generated scene, with the same hits: the speed-up that lets synth cast ten sweeps per
   key frame;
 - peak memory of a run with twice the scenes against the run itself, which must stay
-  near 1.0 because scenes are streamed to disk.
+  near 1.0 because scenes are streamed to disk;
+- with ``--reference-tree DIR`` (a checkout of another commit, e.g. from ``git worktree add``),
+  the wall time of ``sianms synth`` from that tree against this one, each run by the command
+  line in a fresh process, one after the other, same flags: what a speed target set against
+  an earlier version ("within 1.5x of ...") is read from.
 
     python bench/synth.py                       # v1.0-mini, 10 scenes, image scale 0.5
     python bench/synth.py --scenes 2 --workers 2
+    git worktree add ../sianms-ref 7307555 && \
+        python bench/synth.py --image-scale 0.25 --workers 2 --reference-tree ../sianms-ref --only-reference
 """
 
 from __future__ import annotations
@@ -22,7 +28,10 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import multiprocessing
+import os
 import resource
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -56,6 +65,35 @@ def measure_synth(config: SynthConfig, workers: int) -> tuple[float, float]:
         seconds, peak = queue.get()
         process.join()
     return seconds, peak
+
+
+def measure_cli(tree: Path, scenes: int, image_scale: float, workers: int, seed: int) -> float:
+    """Wall seconds of ``sianms synth`` run from the source tree ``tree`` in a fresh process.
+
+    The process starts in an empty folder: ``python -m`` puts its working folder first on the
+    path, so from a checkout it would import that checkout's code whatever PYTHONPATH says.
+    """
+    env = {**os.environ, "PYTHONPATH": str(tree.resolve())}
+    with tempfile.TemporaryDirectory() as folder:
+        imported = subprocess.run([sys.executable, "-c", "import sianms_cli; print(sianms_cli.__file__)"], env=env,
+                                  cwd=folder, check=True, capture_output=True, text=True).stdout.strip()
+        if not Path(imported).resolve().is_relative_to(tree.resolve()):
+            raise SystemExit(f"{tree}: sianms_cli imports from {imported}, not from this tree")
+        command = [sys.executable, "-m", "sianms_cli", "synth", "--out", f"{folder}/data", "--scenes", str(scenes),
+                   "--image-scale", str(image_scale), "--workers", str(workers), "--seed", str(seed), "--quiet"]
+        start = time.perf_counter()
+        subprocess.run(command, env=env, cwd=folder, check=True, stdout=subprocess.DEVNULL)
+        return time.perf_counter() - start
+
+
+def compare_with_reference(reference: Path, scenes: int, image_scale: float, workers: int) -> None:
+    """Print this tree's synth time against the reference tree's, measured one after the other."""
+    here = Path(__file__).resolve().parents[1]
+    seed = 2026
+    before = measure_cli(reference, scenes, image_scale, workers, seed)
+    now = measure_cli(here, scenes, image_scale, workers, seed)
+    print(f"sianms synth --scenes {scenes} --image-scale {image_scale} --workers {workers} --seed {seed}: "
+          f"reference tree {reference} {before:.1f} s, this tree {now:.1f} s -> {now / before:.2f}x the reference")
 
 
 def measure_io_floor(samples: int, image_scale: float) -> float:
@@ -124,7 +162,13 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--memory-scene-seconds", type=float, default=4.0,
                         help="scene length of the two runs that compare peak memory")
+    parser.add_argument("--reference-tree", type=Path, help="a checkout of another commit to time synth against")
+    parser.add_argument("--only-reference", action="store_true", help="only the comparison with --reference-tree")
     args = parser.parse_args()
+    if args.reference_tree is not None:
+        compare_with_reference(args.reference_tree, args.scenes, args.image_scale, args.workers)
+        if args.only_reference:
+            return
 
     config = SynthConfig(scenes=args.scenes, image_scale=args.image_scale)
     samples = args.scenes * config.keyframes

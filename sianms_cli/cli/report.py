@@ -56,12 +56,11 @@ def report_cli(
     else:
         typer.echo(report.markdown)
         typer.echo(f"wrote {report.html}")
-    regressions = report.content.get("regressions", [])
-    if regressions:
+    if report.regressions:
         from sianms_cli.reporting.report import regression_lines
 
-        typer.echo(f"{len(regressions)} cell(s) regressed beyond the allowances:", err=True)
-        for line in regression_lines(regressions):
+        typer.echo(f"{len(report.regressions)} cell(s) regressed beyond the allowances:", err=True)
+        for line in regression_lines(report.regressions):
             typer.echo(f"  {line}", err=True)
         raise typer.Exit(1)
 

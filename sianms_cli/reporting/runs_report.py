@@ -42,6 +42,7 @@ from sianms_cli.reporting.report import (
     HIGHER_IS_BETTER,
     REID_FIGURES,
     RUNS_SCHEMA,
+    Report,
     check_output,
     read_baseline,
     strict_json,
@@ -70,17 +71,6 @@ class RunsReportConfig:
         if any(not source.strip() for source in evals):
             raise SianmsError("EVAL: must not be empty")
         object.__setattr__(self, "evals", evals)
-
-
-@dataclass(frozen=True)
-class RunsReport:
-    out: Path
-    content: dict[str, Any]
-    markdown: str
-
-    @property
-    def html(self) -> Path:
-        return self.out / "report.html"
 
 
 # --------------------------------------------------------------------------- reading
@@ -291,7 +281,7 @@ def summarize(sources: Sequence[str], runs: Sequence[Mapping[str, Any]]) -> dict
 
 
 def run(config: RunsReportConfig, out: str | Path, *, overwrite: bool = False,
-        progress: Progress = SILENT) -> RunsReport:
+        progress: Progress = SILENT) -> Report:
     """Read the runs, summarise them and write ``out`` atomically (module docstring).
 
     Raises:
@@ -318,4 +308,4 @@ def run(config: RunsReportConfig, out: str | Path, *, overwrite: bool = False,
         remove_folder(staging)
         raise
     progress.advance()
-    return RunsReport(published, content, markdown)
+    return Report(published, content, markdown)
