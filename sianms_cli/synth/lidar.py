@@ -160,11 +160,27 @@ def candidate_pairs(parts: Parts, origin: np.ndarray, level: np.ndarray, inflate
     el = np.radians(HDL32E_ELEVATIONS_DEG)
     b_lo = np.searchsorted(el, el_lo - el_margin, side="left")
     n_beam = np.maximum(np.searchsorted(el, el_hi + el_margin, side="right") - b_lo, 0)
-    count = n_col * n_beam
-    part = np.repeat(np.arange(len(parts)), count)
-    within = np.arange(len(part)) - np.repeat(np.cumsum(count) - count, count)
-    column = (k_lo.astype(np.int64)[part] + within // n_beam[part]) % azimuth_steps
-    ray = column * beams + b_lo[part] + within % n_beam[part]
+    return _raster_pairs(k_lo.astype(np.int64), n_col, b_lo.astype(np.int64), n_beam.astype(np.int64), azimuth_steps,
+                         beams)
+
+
+@numba.njit(cache=True)
+def _raster_pairs(k_lo, n_col, b_lo, n_beam, azimuth_steps, beams):
+    """(ray, part) of each part's block of ``n_col`` columns from ``k_lo`` (wrapping around the
+    revolution) by ``n_beam`` beams from ``b_lo``: part by part, column by column, beam by beam."""
+    total = 0
+    for m in range(len(n_col)):
+        total += n_col[m] * n_beam[m]
+    ray = np.empty(total, np.int64)
+    part = np.empty(total, np.int64)
+    i = 0
+    for m in range(len(n_col)):
+        for k in range(n_col[m]):
+            first = ((k_lo[m] + k) % azimuth_steps) * beams + b_lo[m]
+            for b in range(n_beam[m]):
+                ray[i] = first + b
+                part[i] = m
+                i += 1
     return ray, part
 
 

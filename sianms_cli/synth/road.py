@@ -365,12 +365,12 @@ class Street:
         lines = np.zeros(s.shape, dtype=bool)
         outer = self.section.pavement_outer
         for park in self.car_parks:
-            across = park.side * d - outer
+            alongside = np.flatnonzero((s > park.s0) & (s < park.s1))  # the rest of the ground is no bay
+            across = park.side * d[alongside] - outer
             # Every row repeats the first one's lines, so its bays lie straight behind them.
             in_row = np.mod(across - BAY_START, ROW_PITCH) + BAY_START
-            slanted = s - park.s0 - in_row / np.tan(park.angle)
-            lines |= ((s > park.s0) & (s < park.s1) & park.in_bay_row(across)
-                      & (_wrap(slanted, park.bay_spacing) < 0.12))
+            slanted = s[alongside] - park.s0 - in_row / np.tan(park.angle)
+            lines[alongside] |= park.in_bay_row(across) & (_wrap(slanted, park.bay_spacing) < 0.12)
         return lines
 
     def ground_albedo(self, xy: np.ndarray) -> np.ndarray:

@@ -233,3 +233,13 @@ def test_nearest_entries_equal_numpys_to_the_bit_with_ties_and_chunks(moving):
     assert (expected[1] >= 0).sum() > 500 and (expected[1] >= count).sum() > 20  # the copies win some rays
     np.testing.assert_array_equal(got[0], expected[0])
     np.testing.assert_array_equal(got[1], expected[1])
+
+
+def test_raster_pairs_list_each_block_part_by_part_column_by_column():
+    k_lo = np.array([-2, 1081, 5, 7])  # a block before the first column and one past the last wrap around
+    n_col = np.array([3, 4, 0, 2])
+    b_lo, n_beam = np.array([0, 30, 4, 10]), np.array([2, 2, 3, 0])
+    ray, part = lidar._raster_pairs(k_lo, n_col, b_lo, n_beam, 1084, 32)
+    assert part.tolist() == [0] * 6 + [1] * 8  # no pair for a block without columns or beams
+    assert ray.tolist()[:6] == [c * 32 + b for c in (1082, 1083, 0) for b in (0, 1)]
+    assert ray.tolist()[6:] == [c * 32 + 30 + b for c in (1081, 1082, 1083, 0) for b in (0, 1)]
