@@ -9,7 +9,10 @@ projects the points, widened to float64, on three box edges from one corner.
 
 Ground returns lie within millimetres of a box's bottom face, so a count made any other
 way (global frame, float64 points) differs for a few boxes in ten thousand. This module
-repeats the devkit's operations in the same order and precision, vectorised over boxes.
+repeats the devkit's operations in the same order and precision, vectorised over each box
+and the points near it; only the three-term projections are summed left to right where the
+devkit's ``np.dot`` leaves the order to BLAS, which can tell apart only a point within a
+rounding error (1e-16 relative) of a face.
 The pyquaternion steps are written out as its source has them (v0.9.9, MIT licence):
 ``rotation_matrix`` normalises in place when the squared norm is more than 1e-14 from 1,
 then reads the lower-right 3x3 block of ``Q(q) @ Qbar(q)^T``; ``inverse`` is the conjugate

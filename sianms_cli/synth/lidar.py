@@ -52,7 +52,7 @@ MATERIAL_REFLECTIVITY = np.array([
 ], np.float64)
 assert len(MATERIAL_REFLECTIVITY) == len(shapes.MATERIALS)
 
-_MAX_PAIRS = 200_000  # (ray, part) pairs tested at once: bounds memory to tens of MB
+_MAX_PAIRS = 200_000  # (ray, part) pairs per chunk of the nearest-hit search: where ties between chunks fall
 
 
 @dataclass(frozen=True)
@@ -226,12 +226,13 @@ def _nearest_entries(ray, part, origins, dirs, center, half, cos, sin, moving, v
                      chunk):
     """Per ray, the float32 parameter where it enters its nearest part of the pairs, and that part.
 
-    The arithmetic of :func:`_pair_entry`, pair by pair: the ray's origin and direction in
+    The arithmetic of :func:`_pair_slabs`, pair by pair: the ray's origin and direction in
     the part's frame in float64, rounded to float32, then :func:`raycast.slab_interval` in
     float32 with numpy's NaN-propagating minimum and maximum (no fused multiply-add: numba
     contracts nothing unless told to), so the result is numpy's to the bit. Pairs are taken in
-    chunks of ``chunk``, as numpy takes them to bound its memory: of equally near parts of one
-    ray, the last pair of the first chunk holding the nearest entry wins.
+    chunks of ``chunk``, as the numpy version of this search took them to bound its memory: of
+    equally near parts of one ray, the last pair of the first chunk holding the nearest entry
+    wins, so the datasets it wrote are written again byte for byte.
     """
     n_rays = dirs.shape[0]
     t_best = np.full(n_rays, np.inf, np.float32)
