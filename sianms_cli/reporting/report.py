@@ -558,6 +558,16 @@ def check_output(out: Path, overwrite: bool) -> None:
         raise OutputExistsError(f"{out} is the current folder or one of its parents; choose another --out")
 
 
+def write_report_files(folder: Path, title: str, blocks: list[Block], content: Mapping[str, Any]) -> str:
+    """``report.json`` (``content``), ``report.md`` and ``report.html`` (``blocks``) into ``folder``;
+    returns the Markdown."""
+    markdown = render_markdown(title, blocks)
+    write_text(folder / REPORT_FILE, json.dumps(content, indent=2, allow_nan=False) + "\n")
+    write_text(folder / "report.md", markdown)
+    write_text(folder / "report.html", render_html(title, blocks))
+    return markdown
+
+
 def run(config: ReportConfig, out: str | Path | None = None, *, overwrite: bool = False,
         progress: Progress = SILENT) -> Report:
     """`sianms report` (module docstring): read, compare, draw and write the report folder atomically.
@@ -601,13 +611,9 @@ def run(config: ReportConfig, out: str | Path | None = None, *, overwrite: bool 
     try:
         figures, notes = draw_figures(staging, summary, eval_folder, out)
         progress.advance()
-        blocks = document(summary, comparison, figures, notes)
-        title = f"sianms report: {summary['eval']}"
-        markdown = render_markdown(title, blocks)
         content = strict_json(content)
-        write_text(staging / REPORT_FILE, json.dumps(content, indent=2, allow_nan=False) + "\n")
-        write_text(staging / "report.md", markdown)
-        write_text(staging / "report.html", render_html(title, blocks))
+        markdown = write_report_files(staging, f"sianms report: {summary['eval']}",
+                                      document(summary, comparison, figures, notes), content)
         progress.advance()
         published = publish_folder(staging, out)
     except BaseException:

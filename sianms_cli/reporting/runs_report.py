@@ -35,7 +35,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from sianms_cli.errors import SianmsError
-from sianms_cli.io import publish_folder, remove_folder, staging_folder, write_text
+from sianms_cli.io import publish_folder, remove_folder, staging_folder
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.reporting.eval_table import COLUMNS, PAPER_TABLE_I, REGIONS_SHOWN, format_cell, format_ratio
 from sianms_cli.reporting.report import (
@@ -46,8 +46,9 @@ from sianms_cli.reporting.report import (
     check_output,
     read_baseline,
     strict_json,
+    write_report_files,
 )
-from sianms_cli.reporting.report_html import Block, Heading, Paragraph, Table, render_html, render_markdown
+from sianms_cli.reporting.report_html import Block, Heading, Paragraph, Table
 
 SCHEMA_VERSION = 1
 SHARED_FIELDS = ("split", "methods", "nms_sweep", "axis_mode", "sianms_classes", "max_distance", "metrics")
@@ -295,14 +296,9 @@ def run(config: RunsReportConfig, out: str | Path, *, overwrite: bool = False,
     runs = read_runs(config.evals)
     content = summarize(config.evals, runs)
     progress.advance()
-    blocks = document(content)
-    title = f"sianms report: {len(runs)} runs"
-    markdown = render_markdown(title, blocks)
     staging = staging_folder(out)
     try:
-        write_text(staging / "report.json", json.dumps(content, indent=2, allow_nan=False) + "\n")
-        write_text(staging / "report.md", markdown)
-        write_text(staging / "report.html", render_html(title, blocks))
+        markdown = write_report_files(staging, f"sianms report: {len(runs)} runs", document(content), content)
         published = publish_folder(staging, out)
     except BaseException:
         remove_folder(staging)
