@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass
 from functools import cached_property
 
+import numba
 import numpy as np
 
 LANE_WIDTH = 3.5
@@ -153,6 +154,7 @@ class Route:
     def to_route_frame(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Arc length ``s`` (P,) and offset ``d`` (P,) of the nearest centreline point of each xy (P,2)."""
         xy = np.asarray(xy, dtype=float)
+        x, y = xy[:, 0], xy[:, 1]
         points, headings = self._segment_starts
         best_s = np.zeros(len(xy))
         best_d = np.full(len(xy), np.inf)
@@ -160,14 +162,23 @@ class Route:
         for start, point, heading, length, curvature in zip(
             self.starts, points, headings, self.lengths, self.curvatures
         ):
-            u, d = _segment_coordinates(xy, point, heading, length, curvature)
-            excess = np.maximum(np.maximum(-u, u - length), 0.0)
-            cost = excess * excess + d * d  # squared distance: same order, no square root
-            better = cost < best_cost
-            best_cost = np.where(better, cost, best_cost)
-            best_s = np.where(better, start + np.clip(u, 0.0, length), best_s)
-            best_d = np.where(better, d, best_d)
+            u, d = _segment_coordinates(x, y, point, heading, length, curvature)
+            _keep_nearer(u, d, start, length, best_cost, best_s, best_d)
         return best_s, best_d
+
+
+@numba.njit(cache=True)
+def _keep_nearer(u, d, start, length, best_cost, best_s, best_d):
+    """Make a segment the nearest so far (best_cost, best_s, best_d (P,), in place) of the points
+    nearer to it than to every earlier one: u, d (P,) their coordinates along and across it
+    (finite), start its arc length along the route."""
+    for i in range(len(u)):
+        excess = max(-u[i], u[i] - length, 0.0)
+        cost = excess * excess + d[i] * d[i]  # squared distance: same order, no square root
+        if cost < best_cost[i]:
+            best_cost[i] = cost
+            best_s[i] = start + min(max(u[i], 0.0), length)
+            best_d[i] = d[i]
 
 
 def _advance(u: np.ndarray | float, curvature: np.ndarray | float, heading: np.ndarray | float) -> np.ndarray:
@@ -181,24 +192,24 @@ def _advance(u: np.ndarray | float, curvature: np.ndarray | float, heading: np.n
 
 
 def _segment_coordinates(
-    xy: np.ndarray, start: np.ndarray, heading: float, length: float, curvature: float
+    x: np.ndarray, y: np.ndarray, start: np.ndarray, heading: float, length: float, curvature: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Unclipped arc length ``u`` along one segment and lateral offset ``d`` of points (P,2)."""
+    """Unclipped arc length ``u`` along one segment and lateral offset ``d`` of points (x, y) (P,)."""
     if abs(curvature) < 1e-9:
-        delta = xy - start
-        u = delta[:, 0] * np.cos(heading) + delta[:, 1] * np.sin(heading)
-        d = -delta[:, 0] * np.sin(heading) + delta[:, 1] * np.cos(heading)
+        dx, dy = x - start[0], y - start[1]
+        u = dx * np.cos(heading) + dy * np.sin(heading)
+        d = -dx * np.sin(heading) + dy * np.cos(heading)
         return u, d
     radius = 1.0 / curvature
     center = start + radius * np.array([-np.sin(heading), np.cos(heading)])
-    delta = xy - center
+    dx, dy = x - center[0], y - center[1]
     start_angle = np.arctan2(*(start - center)[::-1])
-    angle = np.arctan2(delta[:, 1], delta[:, 0])
+    angle = np.arctan2(dy, dx)
     # Unwrap around the middle of the arc so that points before its start get u < 0.
     middle = start_angle + curvature * length / 2
     swept = _wrap(angle - middle + np.pi, 2 * np.pi) - np.pi + (middle - start_angle)
     u = swept / curvature
-    d = np.sign(curvature) * (abs(radius) - np.hypot(delta[:, 0], delta[:, 1]))
+    d = np.sign(curvature) * (abs(radius) - np.hypot(dx, dy))
     return u, d
 
 
@@ -270,17 +281,15 @@ class Street:
     center_line_yellow: bool
     car_parks: tuple[CarPark, ...] = ()
 
-    def crossing_coordinates(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Along (P,K) and across (P,K) coordinates of points in each crossing street's frame."""
-        if not self.intersections:
-            return np.zeros((len(xy), 0)), np.zeros((len(xy), 0))
-        centers = np.stack([i.center for i in self.intersections])
-        headings = np.array([i.heading for i in self.intersections])
-        delta = xy[:, None, :] - centers[None]
-        cos, sin = np.cos(headings), np.sin(headings)
-        along = delta[..., 0] * cos + delta[..., 1] * sin
-        across = -delta[..., 0] * sin + delta[..., 1] * cos
-        return along, across
+    def crossing_streets(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Whether ground points (P,2) lie on a crossing street's carriageway, on its pavement,
+        inside a junction (its carriageway between the route's kerbs) and on its dashed centre
+        line: four (P,) masks, each over every crossing street."""
+        centers = np.array([i.center for i in self.intersections], dtype=float).reshape(-1, 2)
+        headings = np.array([i.heading for i in self.intersections], dtype=float)
+        limits = np.array([i.along_limits() for i in self.intersections], dtype=float).reshape(-1, 2)
+        return _crossing_streets(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]), centers,
+                                 np.cos(headings), np.sin(headings), limits, self.section.kerb)
 
     def near_intersection(self, s: np.ndarray, margin: float) -> np.ndarray:
         """Whether route arc lengths ``s`` lie within a junction (the crossing street, or the
@@ -305,25 +314,20 @@ class Street:
         ground points (P,2). Classes: 0 asphalt, 1 pavement, 2 verge (grass or plaza).
         """
         s, d = self.route.to_route_frame(xy)
-        along, across = self.crossing_coordinates(xy)
+        on_crossing, crossing_pavement, in_junction, crossing_dashes = self.crossing_streets(xy)
         kerb = self.section.kerb
         abs_d = np.abs(d)
-        limits = np.array([i.along_limits() for i in self.intersections]).reshape(-1, 2)
-        on_arms = (along > limits[:, 0]) & (along < limits[:, 1])
-        on_crossing = (np.abs(across) < CROSSING_HALF_WIDTH) & on_arms
-        crossing_pavement = (np.abs(across) < CROSSING_HALF_WIDTH + PAVEMENT_WIDTH) & (np.abs(along) > kerb) & on_arms
-        in_junction = on_crossing & (np.abs(along) < kerb)
         klass = np.full(len(xy), 2, dtype=np.int8)
-        klass[(abs_d < self.section.pavement_outer) | crossing_pavement.any(axis=1)] = 1
-        klass[(abs_d < kerb) | on_crossing.any(axis=1) | self.in_car_park(s, d)] = 0
+        klass[(abs_d < self.section.pavement_outer) | crossing_pavement] = 1
+        klass[(abs_d < kerb) | on_crossing | self.in_car_park(s, d)] = 0
         if self.section.median > 0:
-            klass[(abs_d < self.section.median / 2 - 0.3) & ~on_crossing.any(axis=1)] = 2  # planted median
+            klass[(abs_d < self.section.median / 2 - 0.3) & ~on_crossing] = 2  # planted median
 
-        on_route_road = ~in_junction.any(axis=1) & (abs_d < kerb)
+        on_route_road = ~in_junction & (abs_d < kerb)
         center_line = self._center_line(s, d) & on_route_road
         markings = center_line | (self._lane_markings(s, d) & on_route_road) | self._zebras(s, d)
         markings |= self._bay_lines(s, d)
-        markings |= (on_crossing & (np.abs(along) > kerb) & _dashes(along, 3.0, 6.0) & (np.abs(across) < 0.08)).any(axis=1)
+        markings |= crossing_dashes
         yellow = center_line if self.center_line_yellow else np.zeros_like(center_line)
         return klass, markings, yellow
 
@@ -411,6 +415,30 @@ def _wrap(x: np.ndarray, period: float) -> np.ndarray:
     return x - np.floor(x / period) * period
 
 
+@numba.njit(cache=True)
+def _crossing_streets(x, y, centers, cos, sin, limits, kerb):
+    """:meth:`Street.crossing_streets` of points (x, y) (P,) and K crossing streets: centres
+    (K,2), the cosine and sine of their headings (K,), their along-street limits (K,2)."""
+    on_crossing = np.zeros(len(x), np.bool_)
+    pavement = np.zeros(len(x), np.bool_)
+    junction = np.zeros(len(x), np.bool_)
+    dashes = np.zeros(len(x), np.bool_)
+    for i in range(len(x)):
+        for k in range(len(cos)):
+            dx, dy = x[i] - centers[k, 0], y[i] - centers[k, 1]
+            along = dx * cos[k] + dy * sin[k]
+            across = -dx * sin[k] + dy * cos[k]
+            if not (along > limits[k, 0] and along < limits[k, 1]):
+                continue
+            if abs(across) < CROSSING_HALF_WIDTH:
+                on_crossing[i] = True
+                junction[i] |= abs(along) < kerb
+                dash = along - np.floor(along / 9.0) * 9.0 < 3.0  # _dashes(along, 3.0, 6.0)
+                dashes[i] |= abs(along) > kerb and dash and abs(across) < 0.08
+            pavement[i] |= abs(across) < CROSSING_HALF_WIDTH + PAVEMENT_WIDTH and abs(along) > kerb
+    return on_crossing, pavement, junction, dashes
+
+
 def _dashes(u: np.ndarray, on: float, off: float) -> np.ndarray:
     return _wrap(u, on + off) < on
 
@@ -426,27 +454,32 @@ def value_noise(xy: np.ndarray, scale: float, seed: int) -> np.ndarray:
     Bilinear interpolation of hashed lattice values, so the ground looks the same from
     every camera and every frame without storing a texture.
     """
-    grid = np.asarray(xy, dtype=float) / scale
-    cell = np.floor(grid)
-    frac = grid - cell
-    frac = frac * frac * (3.0 - 2.0 * frac)
-    ix = cell[:, 0].astype(np.int64)
-    iy = cell[:, 1].astype(np.int64)
-
-    def lattice(dx: int, dy: int) -> np.ndarray:
-        return _hash01(ix + dx, iy + dy, seed)
-
-    bottom = lattice(0, 0) * (1 - frac[:, 0]) + lattice(1, 0) * frac[:, 0]
-    top = lattice(0, 1) * (1 - frac[:, 0]) + lattice(1, 1) * frac[:, 0]
-    return bottom * (1 - frac[:, 1]) + top * frac[:, 1]
+    xy = np.asarray(xy, dtype=float)
+    return _value_noise(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]), float(scale), seed)
 
 
-def _hash01(ix: np.ndarray, iy: np.ndarray, seed: int) -> np.ndarray:
+@numba.njit(cache=True)
+def _value_noise(x, y, scale, seed):
+    noise = np.empty(len(x))
+    for i in range(len(x)):
+        gx, gy = x[i] / scale, y[i] / scale
+        cx, cy = np.floor(gx), np.floor(gy)
+        fx, fy = gx - cx, gy - cy
+        fx = fx * fx * (3.0 - 2.0 * fx)  # smoothstep: no crease at the lattice lines
+        fy = fy * fy * (3.0 - 2.0 * fy)
+        ix, iy = np.int64(cx), np.int64(cy)
+        bottom = _hash01(ix, iy, seed) * (1.0 - fx) + _hash01(ix + 1, iy, seed) * fx
+        top = _hash01(ix, iy + 1, seed) * (1.0 - fx) + _hash01(ix + 1, iy + 1, seed) * fx
+        noise[i] = bottom * (1.0 - fy) + top * fy
+    return noise
+
+
+@numba.njit(cache=True, inline="always")
+def _hash01(ix, iy, seed):
     """Integer lattice hash to [0, 1) (a 64-bit mix, stable across platforms)."""
-    with np.errstate(over="ignore"):
-        h = ix.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)
-        h ^= iy.astype(np.uint64) * np.uint64(0xC2B2AE3D27D4EB4F) + np.uint64(seed)
-        h ^= h >> np.uint64(31)
-        h *= np.uint64(0xBF58476D1CE4E5B9)
-        h ^= h >> np.uint64(29)
-    return (h >> np.uint64(11)).astype(np.float64) / float(1 << 53)
+    h = np.uint64(ix) * np.uint64(0x9E3779B97F4A7C15)
+    h ^= np.uint64(iy) * np.uint64(0xC2B2AE3D27D4EB4F) + np.uint64(seed)
+    h ^= h >> np.uint64(31)
+    h *= np.uint64(0xBF58476D1CE4E5B9)
+    h ^= h >> np.uint64(29)
+    return np.float64(h >> np.uint64(11)) / 9007199254740992.0  # 2 ** 53

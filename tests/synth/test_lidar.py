@@ -1,3 +1,5 @@
+import platform
+
 import numpy as np
 import pytest
 
@@ -233,13 +235,56 @@ def test_nearest_entries_equal_numpys_to_the_bit_with_ties_and_chunks(moving):
     assert (expected[1] >= 0).sum() > 500 and (expected[1] >= count).sum() > 20  # the copies win some rays
     np.testing.assert_array_equal(got[0], expected[0])
     np.testing.assert_array_equal(got[1], expected[1])
+    normal = lidar._entry_normals(got[1], origins, dirs, parts.center, half, np.cos(parts.yaw), np.sin(parts.yaw),
+                                  moving, motion.velocity if moving else np.zeros((0, 3)),
+                                  motion.ray_seconds if moving else np.zeros(0))
+    np.testing.assert_array_equal(normal, numpy_face_normals(got[1], origins, dirs, parts, motion))
+
+
+def numpy_face_normals(part_best, origins, dirs, parts: Parts, motion):
+    """The outward normal of the face each ray enters its part through, with numpy's arrays: the
+    slab of largest entry, first of equal ones (argmax over raycast.slab_interval's t_lo)."""
+    rr = np.flatnonzero(part_best >= 0)
+    pp = part_best[rr]
+    half = parts.half_size.astype(np.float32)
+    c, s = np.cos(parts.yaw), np.sin(parts.yaw)
+    (_, _, t_lo), d = lidar._pair_slabs(rr, pp, origins, dirs, parts.center, half, c, s, motion)
+    axis = np.argmax(np.stack(t_lo, axis=1), axis=1)
+    sign = np.where(np.take_along_axis(np.stack(d, axis=1), axis[:, None], 1)[:, 0] > 0, -1.0, 1.0)
+    n_local = np.zeros((len(rr), 3))
+    n_local[np.arange(len(rr)), axis] = sign
+    normal = np.zeros((len(dirs), 3))
+    normal[rr] = np.column_stack([c[pp] * n_local[:, 0] - s[pp] * n_local[:, 1],
+                                  s[pp] * n_local[:, 0] + c[pp] * n_local[:, 1], n_local[:, 2]])
+    return normal
+
+
+@pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64"), reason="einsum's summation order is x86-64's")
+def test_columns_turn_as_numpys_einsum_turned_them_to_the_bit():
+    rotations = np.random.default_rng(4).normal(size=(1084, 3, 3))  # any matrices: the arithmetic is the point
+    dirs, _ = lidar.beam_directions(1084, 0.3)
+    dirs = dirs.reshape(1084, 32, 3)
+    turned = lidar._turn_columns(rotations, dirs)
+    np.testing.assert_array_equal(turned, np.einsum("cij,cbj->cbi", rotations, dirs))
+    x_plus_y_first = (rotations[:, None, :, 0] * dirs[:, :, None, 0] + rotations[:, None, :, 1] * dirs[:, :, None, 1]) \
+        + rotations[:, None, :, 2] * dirs[:, :, None, 2]
+    assert not np.array_equal(turned, x_plus_y_first)  # the order matters to the bit
 
 
 def test_raster_pairs_list_each_block_part_by_part_column_by_column():
     k_lo = np.array([-2, 1081, 5, 7])  # a block before the first column and one past the last wrap around
     n_col = np.array([3, 4, 0, 2])
     b_lo, n_beam = np.array([0, 30, 4, 10]), np.array([2, 2, 3, 0])
-    ray, part = lidar._raster_pairs(k_lo, n_col, b_lo, n_beam, 1084, 32)
+    reach, t_max = np.full(4, -np.inf), np.full(1084 * 32, np.inf)
+    ray, part = lidar._raster_pairs(k_lo, n_col, b_lo, n_beam, 1084, 32, reach, t_max)
     assert part.tolist() == [0] * 6 + [1] * 8  # no pair for a block without columns or beams
     assert ray.tolist()[:6] == [c * 32 + b for c in (1082, 1083, 0) for b in (0, 1)]
     assert ray.tolist()[6:] == [c * 32 + 30 + b for c in (1081, 1082, 1083, 0) for b in (0, 1)]
+
+
+def test_raster_pairs_leave_out_parts_beyond_a_rays_reach():
+    k_lo, n_col, b_lo, n_beam = np.array([0, 0]), np.array([2, 2]), np.array([0, 0]), np.array([2, 2])
+    t_max = np.full(1084 * 32, 50.0)
+    t_max[[1, 32]] = 20.0  # rays 1 and 32 meet the ground at 20 m
+    ray, part = lidar._raster_pairs(k_lo, n_col, b_lo, n_beam, 1084, 32, np.array([20.0, 30.0]), t_max)
+    assert list(zip(part.tolist(), ray.tolist())) == [(0, 0), (0, 1), (0, 32), (0, 33), (1, 0), (1, 33)]

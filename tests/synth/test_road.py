@@ -211,3 +211,86 @@ def test_a_single_point_of_a_route_is_its_pose():
     for s in (-5.0, 0.0, 10.0, 50.0, 60.0, 75.0, 99.0, 120.0):  # before, on and beyond every segment
         xy, heading = route.pose(np.array([s]))
         np.testing.assert_allclose(route.point(s), (xy[0, 0], xy[0, 1], heading[0]), atol=1e-9)
+
+
+# The ground's per-point loops are numba kernels; datasets written when they were numpy array
+# expressions must be written again to the bit. These are those expressions.
+
+def array_route_frame(route: Route, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    from sianms_cli.synth.road import _segment_coordinates
+    points, headings = route._segment_starts
+    best_s, best_d, best_cost = np.zeros(len(xy)), np.full(len(xy), np.inf), np.full(len(xy), np.inf)
+    for start, point, heading, length, curvature in zip(route.starts, points, headings, route.lengths,
+                                                        route.curvatures):
+        u, d = _segment_coordinates(xy[:, 0], xy[:, 1], point, heading, length, curvature)
+        excess = np.maximum(np.maximum(-u, u - length), 0.0)
+        cost = excess * excess + d * d
+        better = cost < best_cost
+        best_cost = np.where(better, cost, best_cost)
+        best_s = np.where(better, start + np.clip(u, 0.0, length), best_s)
+        best_d = np.where(better, d, best_d)
+    return best_s, best_d
+
+
+def array_crossing_streets(street: Street, xy: np.ndarray) -> tuple[np.ndarray, ...]:
+    centers = np.stack([i.center for i in street.intersections])
+    headings = np.array([i.heading for i in street.intersections])
+    delta = xy[:, None, :] - centers[None]
+    cos, sin = np.cos(headings), np.sin(headings)
+    along = delta[..., 0] * cos + delta[..., 1] * sin
+    across = -delta[..., 0] * sin + delta[..., 1] * cos
+    kerb = street.section.kerb
+    limits = np.array([i.along_limits() for i in street.intersections])
+    on_arms = (along > limits[:, 0]) & (along < limits[:, 1])
+    on_crossing = (np.abs(across) < 7.0) & on_arms
+    pavement = (np.abs(across) < 7.0 + 4.5) & (np.abs(along) > kerb) & on_arms
+    junction = on_crossing & (np.abs(along) < kerb)
+    dashes = on_crossing & (np.abs(along) > kerb) & (along - np.floor(along / 9.0) * 9.0 < 3.0) & (np.abs(across) < 0.08)
+    return tuple(mask.any(axis=1) for mask in (on_crossing, pavement, junction, dashes))
+
+
+def array_value_noise(xy: np.ndarray, scale: float, seed: int) -> np.ndarray:
+    grid = xy / scale
+    cell = np.floor(grid)
+    frac = grid - cell
+    frac = frac * frac * (3.0 - 2.0 * frac)
+    ix, iy = cell[:, 0].astype(np.int64), cell[:, 1].astype(np.int64)
+
+    def lattice(dx: int, dy: int) -> np.ndarray:
+        with np.errstate(over="ignore"):
+            h = (ix + dx).astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)
+            h ^= (iy + dy).astype(np.uint64) * np.uint64(0xC2B2AE3D27D4EB4F) + np.uint64(seed)
+            h ^= h >> np.uint64(31)
+            h *= np.uint64(0xBF58476D1CE4E5B9)
+            h ^= h >> np.uint64(29)
+        return (h >> np.uint64(11)).astype(np.float64) / float(1 << 53)
+
+    bottom = lattice(0, 0) * (1 - frac[:, 0]) + lattice(1, 0) * frac[:, 0]
+    top = lattice(0, 1) * (1 - frac[:, 0]) + lattice(1, 1) * frac[:, 0]
+    return bottom * (1 - frac[:, 1]) + top * frac[:, 1]
+
+
+def ground_points(rng: np.random.Generator, center: np.ndarray, count: int = 20_000) -> np.ndarray:
+    """Points scattered over 300 m around ``center``, a tenth of them on a 1 cm grid (on the
+    boundaries of paint and lattice cells)."""
+    xy = center + rng.uniform(-150.0, 150.0, (count, 2))
+    xy[: count // 10] = np.round(xy[: count // 10], 2)
+    return xy
+
+
+@pytest.mark.parametrize("arms_4way", [False, True])
+def test_ground_kernels_equal_their_array_expressions_to_the_bit(arms_4way):
+    street, _ = _turn_street(arms_4way)
+    for route, xy in ((street.route, ground_points(np.random.default_rng(1), np.array([115.0, 0.0]))),
+                      (_route(), ground_points(np.random.default_rng(2), np.array([150.0, 250.0])))):
+        for got, expected in zip(route.to_route_frame(xy), array_route_frame(route, xy)):
+            np.testing.assert_array_equal(got, expected)
+    rng = np.random.default_rng(3)
+    on_centre_line = np.column_stack([115.0 + rng.uniform(-0.1, 0.1, 3000), rng.uniform(-150.0, 150.0, 3000)])
+    xy = np.concatenate([ground_points(rng, np.array([115.0, 0.0])), on_centre_line])
+    masks = street.crossing_streets(xy)
+    assert all(mask.sum() > 20 for mask in masks)  # every mask is exercised
+    for got, expected in zip(masks, array_crossing_streets(street, xy)):
+        np.testing.assert_array_equal(got, expected)
+    for scale, seed in ((0.35, 11), (4.0, 23), (40.0, 5)):
+        np.testing.assert_array_equal(value_noise(xy, scale, seed), array_value_noise(xy, scale, seed))
