@@ -371,6 +371,31 @@ def _pair_slabs(rr, pp, origins, dirs, center, half, c, s, motion):
     return slab_interval([-h_k - o_k for h_k, o_k in zip(h, o)], [h_k - o_k for h_k, o_k in zip(h, o)], d), d
 
 
+@numba.njit(cache=True)
+def _cos_incidence(rays, on_part, normal, dirs):
+    """|cos| of the angle between each hit ray ``rays`` (N,) and the surface it hit: its part's
+    face normal (R,3) where on_part (N,), the ground's (0, 0, 1) elsewhere. The dot product sums
+    as (x + z) + y, numpy's einsum's order, as datasets were written with it."""
+    cos = np.empty(len(rays))
+    for i in range(len(rays)):
+        r = rays[i]
+        n0, n1, n2 = (normal[r, 0], normal[r, 1], normal[r, 2]) if on_part[i] else (0.0, 0.0, 1.0)
+        cos[i] = abs((n0 * dirs[r, 0] + n2 * dirs[r, 2]) + n1 * dirs[r, 1])
+    return cos
+
+
+@numba.njit(cache=True)
+def _ground_points(origin_xy, origins, dirs, rays, t):
+    """Global xy (N,2) where rays ``rays`` (N,) meet the ground ``t`` (N,) metres along them;
+    origins (R,3) relative to origin_xy (2,) (the arithmetic of ``origin + o + t * d``)."""
+    xy = np.empty((len(rays), 2))
+    for i in range(len(rays)):
+        r = rays[i]
+        for k in range(2):
+            xy[i, k] = (origin_xy[k] + origins[r, k]) + t[i] * dirs[r, k]
+    return xy
+
+
 # Car windows (the sides of a glazed cabin; its roof is metal) reflect the beam away or let
 # it through: they bring no return except near normal incidence (issue:nutonomy/nuscenes-devkit#845:
 # no return "when hitting very reflective surfaces such as car windows"; the 10 degree cone is
@@ -531,11 +556,12 @@ def scan_lidar(parts: Parts, lidar_to_world, rng: np.random.Generator, ground_re
     beams = len(HDL32E_ELEVATIONS_DEG)
     dirs_lidar, ring = beam_directions(azimuth_steps, start_azimuth)
     dirs = _turn_columns(poses[:, :3, :3], dirs_lidar.reshape(azimuth_steps, beams, 3)).reshape(-1, 3)
-    origins = np.repeat(poses[:, :3, 3] - reference[:3, 3], beams, axis=0)  # relative to the reference origin
+    column_origins = poses[:, :3, 3] - reference[:3, 3]  # relative to the reference origin
+    origins = np.repeat(column_origins, beams, axis=0)
     t_ground = intersect_ground(origins + reference[:3, 3], dirs, t_max=max_range)
 
     level = _level_frame(reference)
-    spread = np.linalg.norm(origins, axis=1).max()
+    spread = np.linalg.norm(column_origins, axis=1).max()
     inflate = np.full(len(parts), spread + 1e-3)
     motion = None
     if part_velocity is not None and len(parts):
@@ -558,17 +584,16 @@ def scan_lidar(parts: Parts, lidar_to_world, rng: np.random.Generator, ground_re
     on_part = on_part[idx]
     t = t[idx]
     part_hit = np.where(on_part, part_hit[idx], 0)
-    normals = np.where(on_part[:, None], normal[idx], np.array([0.0, 0.0, 1.0]))
-    cos_inc = np.abs(np.einsum("ij,ij->i", normals, dirs[idx]))
+    cos_inc = _cos_incidence(idx, on_part, normal, dirs)
     reflect = np.empty(len(idx))
     reflect[on_part] = MATERIAL_REFLECTIVITY[parts.material[part_hit[on_part]]] if on_part.any() else 0.0
     ground = ~on_part
     if ground.any():
-        xy = reference[:2, 3] + origins[idx[ground], :2] + t[ground, None] * dirs[idx[ground], :2]
+        xy = _ground_points(reference[:2, 3], origins, dirs, idx[ground], t[ground])
         reflect[ground] = np.clip(ground_reflectivity(xy), 0.0, 1.0)
 
     glass = np.zeros(len(idx), bool)
-    side = np.abs(normals[on_part, 2]) < 0.5
+    side = np.abs(normal[idx[on_part], 2]) < 0.5
     glass[on_part] = np.isin(parts.material[part_hit[on_part]], GLASS_MATERIALS) & side
     keep_dry = _keep_probability(cos_inc, reflect, t, max_range, dropout, glass)
     keep = rng.uniform(size=len(idx)) < keep_dry
