@@ -265,7 +265,16 @@ def _nearest_entries(ray, part, origins, dirs, center, half, cos, sin, moving, v
         stop = min(start + chunk, len(ray))
         for i in range(start, stop):
             r, p = ray[i], part[i]
-            local_o, local_d = _local_ray(r, p, origins, dirs, center, cos, sin, moving, velocity, seconds)
+            # _local_ray written out: called here, even inlined, it made this loop 1.7-1.9x slower.
+            o0, o1, o2 = origins[r, 0] - center[p, 0], origins[r, 1] - center[p, 1], origins[r, 2] - center[p, 2]
+            if moving:
+                o0 = o0 - velocity[p, 0] * seconds[r]
+                o1 = o1 - velocity[p, 1] * seconds[r]
+                o2 = o2 - velocity[p, 2] * seconds[r]
+            cp, sp = cos[p], sin[p]
+            local_o = (np.float32(cp * o0 + sp * o1), np.float32(cp * o1 - sp * o0), np.float32(o2))
+            local_d = (np.float32(cp * dirs[r, 0] + sp * dirs[r, 1]), np.float32(cp * dirs[r, 1] - sp * dirs[r, 0]),
+                       np.float32(dirs[r, 2]))
             t_near, t_far = _slab(-half[p, 0] - local_o[0], half[p, 0] - local_o[0], local_d[0], -inf, inf)
             t_near, t_far = _slab(-half[p, 1] - local_o[1], half[p, 1] - local_o[1], local_d[1], t_near, t_far)
             t_near, t_far = _slab(-half[p, 2] - local_o[2], half[p, 2] - local_o[2], local_d[2], t_near, t_far)
@@ -285,7 +294,7 @@ def _nearest_entries(ray, part, origins, dirs, center, half, cos, sin, moving, v
     return t_best, part_best
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _local_ray(r, p, origins, dirs, center, cos, sin, moving, velocity, seconds):
     """Origin and direction (float32 triples) of ray r in the frame of part p: :func:`_local_rays`
     for one pair, to the bit."""
