@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import numba
 import numpy as np
 
 from sianms_cli.synth.road import LANE_WIDTH, Street
@@ -148,10 +149,24 @@ def closest_approach(agents, street: Street, rows: np.ndarray, times: np.ndarray
         center, yaw, _ = agents.pose(street.route, float(t))
         center = np.vstack([center[:, :2], ego_xy[k]])
         circles, radius = _circles(center, np.append(yaw, ego_yaw[k]), size)
-        gap = np.linalg.norm(circles[rows][:, :, None, None, :] - circles[None, None, :, :, :], axis=-1)
-        worst = np.minimum(worst, gap.min(axis=(1, 3)) - radius[rows][:, None] - radius[None, :])
+        _lower_to_clearances(worst, circles, radius, rows)
     worst[np.arange(len(rows)), rows] = np.inf
     return worst
+
+
+@numba.njit(cache=True)
+def _lower_to_clearances(worst, circles, radius, rows):
+    """Lower worst (R,M) in place to the clearances between the bodies of road users ``rows``
+    (R,) and every road user: the gap between their nearest circles (M,3,2) less both radii (M,)."""
+    for i in range(len(rows)):
+        a = rows[i]
+        for j in range(len(radius)):
+            gap = np.inf
+            for p in range(3):
+                for q in range(3):
+                    dx, dy = circles[a, p, 0] - circles[j, q, 0], circles[a, p, 1] - circles[j, q, 1]
+                    gap = min(gap, np.sqrt(dx * dx + dy * dy))
+            worst[i, j] = min(worst[i, j], gap - radius[a] - radius[j])
 
 
 def _revert_conflicts(agents, original, street: Street, ego, times: np.ndarray):

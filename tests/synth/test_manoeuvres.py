@@ -79,3 +79,21 @@ def test_pulling_out_cars_are_stopped_until_they_go(plans):
     before = agents.attributes(agents.pose(plan.route, float(start[0]) - 0.5)[2])[out[0]]
     after = agents.attributes(agents.pose(plan.route, float(start[0]) + 0.5)[2])[out[0]]
     assert (before, after) == ("vehicle.stopped", "vehicle.moving")
+
+
+def test_clearances_equal_the_array_expression_plans_were_made_with(plans):
+    """The clearance loop is a numba kernel; scenes planned when it was this numpy expression
+    must be planned again to the bit."""
+    from sianms_cli.synth.manoeuvres import _circles, _lower_to_clearances
+    rng = np.random.default_rng(6)
+    center, yaw = rng.uniform(-30.0, 30.0, (40, 2)), rng.uniform(-np.pi, np.pi, 40)
+    size = np.column_stack([rng.uniform(0.5, 3.0, 40), rng.uniform(0.5, 12.0, 40)])
+    circles, radius = _circles(center, yaw, size)
+    rows = np.array([3, 0, 39, 17])
+    worst = rng.uniform(-1.0, 5.0, (len(rows), 40))
+    before = worst.copy()
+    gap = np.linalg.norm(circles[rows][:, :, None, None, :] - circles[None, None, :, :, :], axis=-1)
+    expected = np.minimum(worst, gap.min(axis=(1, 3)) - radius[rows][:, None] - radius[None, :])
+    _lower_to_clearances(worst, circles, radius, rows)
+    np.testing.assert_array_equal(worst, expected)
+    assert (worst < before).any() and (worst == before).any()  # some lowered, some left
