@@ -22,13 +22,14 @@ import secrets
 import shutil
 from contextlib import contextmanager
 from pathlib import Path
-from typing import IO, Any, Iterator
+from typing import IO, Any, Callable, Iterator, TypeVar
 
 import orjson
 
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
 
 PARTIAL_SUFFIX = ".partial"
+T = TypeVar("T")
 
 
 class OutputError(SianmsError):
@@ -214,13 +215,32 @@ def sha256_of(path: str | Path) -> str:
 
 
 def staging_folder(destination: str | Path) -> Path:
-    """A new, hidden, empty folder beside ``destination`` to build it in (umask permissions)."""
+    """A new, hidden, empty folder beside ``destination`` to build it in (umask permissions).
+
+    An error names ``destination``: the hidden name means nothing to the user who asked for
+    it, and the cause (a read-only parent, a full disk) is the same."""
     destination = Path(os.path.abspath(destination))
     make_folder(destination.parent)
     staging = destination.with_name(f".{destination.name}.{os.getpid()}.{secrets.token_hex(4)}{PARTIAL_SUFFIX}")
-    with os_errors_as_output_errors(staging):
+    with os_errors_as_output_errors(destination):
         staging.mkdir(mode=0o777)
     return staging
+
+
+def build_folder(destination: str | Path, build: Callable[[Path], T]) -> tuple[Path, T]:
+    """Build the folder ``destination`` atomically: ``build`` fills a staging folder beside it
+    (:func:`staging_folder`), which then replaces it (:func:`publish_folder`); on a failure or
+    an interrupt the staging folder is removed and ``destination`` is left as it was.
+
+    Returns the published folder and what ``build`` returned. The caller has checked that
+    ``destination`` may be replaced (``build`` may check again before it returns)."""
+    staging = staging_folder(destination)
+    try:
+        built = build(staging)
+        return publish_folder(staging, destination), built
+    except BaseException:
+        remove_folder(staging)
+        raise
 
 
 def publish_folder(staging: Path, destination: str | Path) -> Path:

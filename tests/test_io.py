@@ -128,6 +128,35 @@ def test_publish_folder_replaces_and_leaves_nothing_aside(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["data"]
 
 
+@pytest.mark.parametrize("failure", [ValueError("bad record"), KeyboardInterrupt()])
+def test_build_folder_publishes_a_complete_folder_or_leaves_the_old_one(tmp_path, failure):
+    destination = tmp_path / "report"
+    destination.mkdir()
+    (destination / "old.txt").write_text("old")
+
+    def fail(staging):
+        (staging / "half.txt").write_text("half")
+        raise failure
+
+    with pytest.raises(type(failure)):
+        io.build_folder(destination, fail)
+    assert [p.name for p in tmp_path.iterdir()] == ["report"] and (destination / "old.txt").read_text() == "old"
+
+    def write(staging):
+        (staging / "new.txt").write_text("new")
+        return 7
+
+    assert io.build_folder(destination, write) == (destination, 7)
+    assert [p.name for p in destination.iterdir()] == ["new.txt"]
+    assert [p.name for p in tmp_path.iterdir()] == ["report"]
+
+
+def test_a_staging_folder_that_cannot_be_made_is_named_by_its_destination(read_only_folder):
+    with pytest.raises(io.OutputError) as caught:
+        io.staging_folder(read_only_folder / "out")
+    assert str(caught.value) == f"cannot write {read_only_folder}/out: Read-only file system"
+
+
 def test_working_folder_and_its_parents_are_recognised(tmp_path, monkeypatch):
     (tmp_path / "a" / "b").mkdir(parents=True)
     monkeypatch.chdir(tmp_path / "a" / "b")

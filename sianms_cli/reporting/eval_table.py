@@ -83,11 +83,14 @@ def eval_table(reports: Mapping[str, MetricsReport], reid: Mapping[str, Any], bo
     }
 
 
+def figure_digits(column: str) -> int:
+    """Decimals every table prints a figure of :data:`COLUMNS` to: AP and ASE (%) to 0.1, ATE and AOE to 0.001."""
+    return 1 if column in ("AP", "ASE") else 3
+
+
 def format_cell(value: float | None, column: str) -> str:
-    """A figure of :data:`COLUMNS` as every table prints it: AP and ASE (%) to 0.1, ATE and AOE to 0.001."""
-    if value is None:
-        return "-"
-    return f"{value:.1f}" if column in ("AP", "ASE") else f"{value:.3f}"
+    """A figure of :data:`COLUMNS` as every table prints it (:func:`figure_digits`)."""
+    return "-" if value is None else f"{value:.{figure_digits(column)}f}"
 
 
 def table_markdown(table: Mapping[str, Any]) -> str:

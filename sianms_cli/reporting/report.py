@@ -35,14 +35,7 @@ from types import MappingProxyType
 from typing import Any, Mapping
 
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
-from sianms_cli.io import (
-    is_inside_working_folder,
-    publish_folder,
-    read_json,
-    remove_folder,
-    staging_folder,
-    write_text,
-)
+from sianms_cli.io import build_folder, is_inside_working_folder, read_json, write_text
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.reporting.eval_table import (
     COLUMNS,
@@ -607,17 +600,16 @@ def run(config: ReportConfig, out: str | Path | None = None, *, overwrite: bool 
                                                              "allowance", "why")}
                                   for row in comparison["cells"] + comparison["reidentification"] if row["regressed"]]
     progress.advance()
-    staging = staging_folder(out)
-    try:
+    content = strict_json(content)
+
+    def write(staging: Path) -> str:
         figures, notes = draw_figures(staging, summary, eval_folder, out)
         progress.advance()
-        content = strict_json(content)
         markdown = write_report_files(staging, f"sianms report: {summary['eval']}",
                                       document(summary, comparison, figures, notes), content)
         progress.advance()
-        published = publish_folder(staging, out)
-    except BaseException:
-        remove_folder(staging)
-        raise
+        return markdown
+
+    published, markdown = build_folder(out, write)
     progress.advance()
     return Report(published, content, markdown)

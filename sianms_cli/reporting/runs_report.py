@@ -35,9 +35,16 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from sianms_cli.errors import SianmsError
-from sianms_cli.io import publish_folder, remove_folder, staging_folder
+from sianms_cli.io import build_folder
 from sianms_cli.progress import SILENT, Progress
-from sianms_cli.reporting.eval_table import COLUMNS, PAPER_TABLE_I, REGIONS_SHOWN, format_cell, format_ratio
+from sianms_cli.reporting.eval_table import (
+    COLUMNS,
+    PAPER_TABLE_I,
+    REGIONS_SHOWN,
+    figure_digits,
+    format_cell,
+    format_ratio,
+)
 from sianms_cli.reporting.report import (
     HIGHER_IS_BETTER,
     REID_FIGURES,
@@ -185,10 +192,6 @@ def reidentification(runs: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, A
 # --------------------------------------------------------------------------- the document
 
 
-def _digits(column: str) -> int:
-    return 1 if column in ("AP", "ASE") else 3
-
-
 def _signed(value: float, digits: int) -> str:
     """``value`` with its sign, and no "-0.0" for a difference that rounds to nothing."""
     text = f"{value:+.{digits}f}"
@@ -198,7 +201,7 @@ def _signed(value: float, digits: int) -> str:
 def _plus_minus(stats: Mapping[str, Any], column: str, signed: bool = False) -> str:
     if stats["mean"] is None:
         return "-"
-    digits = _digits(column)
+    digits = figure_digits(column)
     mean = _signed(stats["mean"], digits) if signed else f"{stats['mean']:.{digits}f}"
     return mean if stats["sd"] is None else f"{mean} ± {stats['sd']:.{digits}f}"
 
@@ -207,7 +210,7 @@ def _interval(stats: Mapping[str, Any], column: str) -> str:
     if stats["ci95"] is None:
         return "-"
     low, high = stats["ci95"]
-    return f"[{_signed(low, _digits(column))}, {_signed(high, _digits(column))}]"
+    return f"[{_signed(low, figure_digits(column))}, {_signed(high, figure_digits(column))}]"
 
 
 def document(content: Mapping[str, Any]) -> list[Block]:
@@ -296,12 +299,7 @@ def run(config: RunsReportConfig, out: str | Path, *, overwrite: bool = False,
     runs = read_runs(config.evals)
     content = summarize(config.evals, runs)
     progress.advance()
-    staging = staging_folder(out)
-    try:
-        markdown = write_report_files(staging, f"sianms report: {len(runs)} runs", document(content), content)
-        published = publish_folder(staging, out)
-    except BaseException:
-        remove_folder(staging)
-        raise
+    published, markdown = build_folder(
+        out, lambda staging: write_report_files(staging, f"sianms report: {len(runs)} runs", document(content), content))
     progress.advance()
     return Report(published, content, markdown)

@@ -232,30 +232,14 @@ def run(
     out = Path(out).resolve()  # through a symbolic link: replace the folder it names, not the link
     _check_output(out, overwrite=overwrite)
     names = config.scene_names()
-    staging = _make_staging_folder(out)
-    try:
+
+    def write(staging: Path) -> None:
         with _errors_name_files_under(out, staging):
             _write_dataset(staging, config, names, progress, workers)
         _check_output(out, overwrite=overwrite)  # again: OUT may have changed during a long run
-        io.publish_folder(staging, out)
-    except BaseException:
-        io.remove_folder(staging)
-        raise
+
+    io.build_folder(out, write)
     return SynthResult(out, config.version, len(names), len(names) * config.keyframes)
-
-
-def _make_staging_folder(out: Path) -> Path:
-    """:func:`io.staging_folder` beside ``out``; when it cannot be made, the error names ``out``.
-
-    The hidden staging name means nothing to the user who asked for ``out``; the OS error
-    io converted (kept as the error's context) gives the cause.
-    """
-    try:
-        return io.staging_folder(out)
-    except io.OutputError as error:
-        if not isinstance(error.__context__, OSError):
-            raise
-        raise io.OutputError(f"cannot write {io.describe_os_error(error.__context__, out)}") from None
 
 
 def _check_output(out: Path, *, overwrite: bool) -> None:
