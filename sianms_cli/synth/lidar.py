@@ -236,16 +236,16 @@ def _nearest_hits(ray, part, origins, dirs, parts: Parts, t_max, motion: PartMot
     moving = motion is not None
     velocity = motion.velocity if moving else np.zeros((0, 3))
     seconds = motion.ray_seconds if moving else np.zeros(0)
-    t_best, part_best = _nearest_entries(ray, part, origins, dirs, parts.center, half, c, s, moving, velocity,
-                                         seconds, t_max, np.float32(T_MIN), _MAX_PAIRS)
-    normal = _entry_normals(part_best, origins, dirs, parts.center, half, c, s, moving, velocity, seconds)
-    return t_best.astype(np.float64), part_best, normal
+    t_best, part_best, face = _nearest_entries(ray, part, origins, dirs, parts.center, half, c, s, moving, velocity,
+                                               seconds, t_max, np.float32(T_MIN), _MAX_PAIRS)
+    return t_best.astype(np.float64), part_best, _face_normals(face, part_best, c, s)
 
 
 @numba.njit(cache=True, error_model="numpy")
 def _nearest_entries(ray, part, origins, dirs, center, half, cos, sin, moving, velocity, seconds, t_max, t_min,
                      chunk):
-    """Per ray, the float32 parameter where it enters its nearest part of the pairs, and that part.
+    """Per ray, the float32 parameter where it enters its nearest part of the pairs, that part,
+    and the face it enters through (see :func:`_face_normals`; -1 for none).
 
     The arithmetic of :func:`_pair_slabs`, pair by pair: the ray's origin and direction in
     the part's frame in float64, rounded to float32, then :func:`raycast.slab_interval` in
@@ -253,19 +253,21 @@ def _nearest_entries(ray, part, origins, dirs, center, half, cos, sin, moving, v
     contracts nothing unless told to), so the result is numpy's to the bit. Pairs are taken in
     chunks of ``chunk``, as the numpy version of this search took them to bound its memory: of
     equally near parts of one ray, the last pair of the first chunk holding the nearest entry
-    wins, so the datasets it wrote are written again byte for byte.
+    wins, so the datasets it wrote are written again byte for byte. The face is the slab entered
+    last, the first of equal ones (numpy's argmax over the slab test's entries).
     """
     n_rays = dirs.shape[0]
     t_best = np.full(n_rays, np.inf, np.float32)
     part_best = np.full(n_rays, -1, np.int64)
+    face_best = np.full(n_rays, -1, np.int8)
     chunk_min = np.full(n_rays, np.inf, np.float32)
     entry = np.empty(min(chunk, len(ray)), np.float32)
+    face = np.empty(min(chunk, len(ray)), np.int8)
     inf = np.float32(np.inf)
     for start in range(0, len(ray), chunk):
         stop = min(start + chunk, len(ray))
         for i in range(start, stop):
             r, p = ray[i], part[i]
-            # _local_ray written out: called here, even inlined, it made this loop 1.7-1.9x slower.
             o0, o1, o2 = origins[r, 0] - center[p, 0], origins[r, 1] - center[p, 1], origins[r, 2] - center[p, 2]
             if moving:
                 o0 = o0 - velocity[p, 0] * seconds[r]
@@ -275,73 +277,53 @@ def _nearest_entries(ray, part, origins, dirs, center, half, cos, sin, moving, v
             local_o = (np.float32(cp * o0 + sp * o1), np.float32(cp * o1 - sp * o0), np.float32(o2))
             local_d = (np.float32(cp * dirs[r, 0] + sp * dirs[r, 1]), np.float32(cp * dirs[r, 1] - sp * dirs[r, 0]),
                        np.float32(dirs[r, 2]))
-            t_near, t_far = _slab(-half[p, 0] - local_o[0], half[p, 0] - local_o[0], local_d[0], -inf, inf)
-            t_near, t_far = _slab(-half[p, 1] - local_o[1], half[p, 1] - local_o[1], local_d[1], t_near, t_far)
-            t_near, t_far = _slab(-half[p, 2] - local_o[2], half[p, 2] - local_o[2], local_d[2], t_near, t_far)
+            t_near, t_far, lo0 = _slab(-half[p, 0] - local_o[0], half[p, 0] - local_o[0], local_d[0], -inf, inf)
+            t_near, t_far, lo1 = _slab(-half[p, 1] - local_o[1], half[p, 1] - local_o[1], local_d[1], t_near, t_far)
+            t_near, t_far, lo2 = _slab(-half[p, 2] - local_o[2], half[p, 2] - local_o[2], local_d[2], t_near, t_far)
             t = t_near if (t_near <= t_far) and (t_near > t_min) and (t_near < t_max[r]) else inf
             entry[i - start] = t
+            if t < inf:
+                axis = 2 if lo2 > max(lo0, lo1) else (1 if lo1 > lo0 else 0)
+                face[i - start] = 2 * axis + (1 if local_d[axis] > 0 else 0)
             if t < chunk_min[r]:
                 chunk_min[r] = t
         for i in range(start, stop):
             r, t = ray[i], entry[i - start]
             if t < inf and t == chunk_min[r] and t < t_best[r]:
                 part_best[r] = part[i]
+                face_best[r] = face[i - start]
         for i in range(start, stop):
             r = ray[i]
             if chunk_min[r] < t_best[r]:
                 t_best[r] = chunk_min[r]
             chunk_min[r] = inf
-    return t_best, part_best
+    return t_best, part_best, face_best
 
 
-@numba.njit(cache=True)
-def _local_ray(r, p, origins, dirs, center, cos, sin, moving, velocity, seconds):
-    """Origin and direction (float32 triples) of ray r in the frame of part p: :func:`_local_rays`
-    for one pair, to the bit."""
-    o0, o1, o2 = origins[r, 0] - center[p, 0], origins[r, 1] - center[p, 1], origins[r, 2] - center[p, 2]
-    if moving:
-        o0 = o0 - velocity[p, 0] * seconds[r]
-        o1 = o1 - velocity[p, 1] * seconds[r]
-        o2 = o2 - velocity[p, 2] * seconds[r]
-    cp, sp = cos[p], sin[p]
-    local_o = (np.float32(cp * o0 + sp * o1), np.float32(cp * o1 - sp * o0), np.float32(o2))
-    local_d = (np.float32(cp * dirs[r, 0] + sp * dirs[r, 1]), np.float32(cp * dirs[r, 1] - sp * dirs[r, 0]),
-               np.float32(dirs[r, 2]))
-    return local_o, local_d
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _entry_normals(part_best, origins, dirs, center, half, cos, sin, moving, velocity, seconds):
-    """Global unit outward normal (R,3) of the face each ray enters its part ``part_best`` (R,)
-    through (zero where part_best is -1): the slab whose entry parameter is largest, the first
-    of equal ones (numpy's argmax over :func:`raycast.slab_interval`'s t_lo), in float32."""
-    normal = np.zeros((len(part_best), 3))
-    for r in range(len(part_best)):
-        p = part_best[r]
-        if p < 0:
-            continue
-        local_o, local_d = _local_ray(r, p, origins, dirs, center, cos, sin, moving, velocity, seconds)
-        axis, t_entry = 0, np.float32(-np.inf)
-        for k in range(3):
-            inv = np.float32(1.0) / local_d[k]
-            t_lo = _minimum((-half[p, k] - local_o[k]) * inv, (half[p, k] - local_o[k]) * inv)
-            if k == 0 or t_lo > t_entry:
-                axis, t_entry = k, t_lo
-        sign = -1.0 if local_d[axis] > 0 else 1.0
-        n0, n1 = (sign if axis == 0 else 0.0), (sign if axis == 1 else 0.0)
-        normal[r, 0] = cos[p] * n0 - sin[p] * n1
-        normal[r, 1] = sin[p] * n0 + cos[p] * n1
-        normal[r, 2] = sign if axis == 2 else 0.0
+def _face_normals(face, part, cos, sin):
+    """Global unit outward normal (R,3) of the face each ray entered its part ``part`` (R,) through:
+    face (R,) ``2 * axis + 1`` when the ray entered along the part's +axis (through the face at
+    -half), ``2 * axis`` along -axis, -1 for no hit (normal zero); cos, sin of the parts' yaw."""
+    rays = np.flatnonzero(face >= 0)
+    axis = face[rays] // 2
+    n_local = np.zeros((len(rays), 3))
+    n_local[np.arange(len(rays)), axis] = np.where(face[rays] % 2 == 1, -1.0, 1.0)
+    cp, sp = cos[part[rays]], sin[part[rays]]
+    normal = np.zeros((len(face), 3))
+    normal[rays] = np.column_stack([cp * n_local[:, 0] - sp * n_local[:, 1], sp * n_local[:, 0] + cp * n_local[:, 1],
+                                    n_local[:, 2]])
     return normal
 
 
 @numba.njit(cache=True, error_model="numpy")
 def _slab(lower, upper, d, t_near, t_far):
-    """One axis of :func:`raycast.slab_interval` (float32), narrowing (t_near, t_far); the first
-    axis passes (-inf, inf), which leaves its own bounds, as numpy's first axis does."""
+    """One axis of :func:`raycast.slab_interval` (float32), narrowing (t_near, t_far), and its
+    entry parameter; the first axis passes (-inf, inf), which leaves its own bounds, as numpy's
+    first axis does."""
     inv = np.float32(1.0) / d
     t1, t2 = lower * inv, upper * inv
-    return _maximum(t_near, _minimum(t1, t2)), _minimum(t_far, _maximum(t1, t2))
+    lo = _minimum(t1, t2)
+    return _maximum(t_near, lo), _minimum(t_far, _maximum(t1, t2)), lo
 
 
 @numba.njit(cache=True)

@@ -235,10 +235,9 @@ def test_nearest_entries_equal_numpys_to_the_bit_with_ties_and_chunks(moving):
     assert (expected[1] >= 0).sum() > 500 and (expected[1] >= count).sum() > 20  # the copies win some rays
     np.testing.assert_array_equal(got[0], expected[0])
     np.testing.assert_array_equal(got[1], expected[1])
-    normal = lidar._entry_normals(got[1], origins, dirs, parts.center, half, np.cos(parts.yaw), np.sin(parts.yaw),
-                                  moving, motion.velocity if moving else np.zeros((0, 3)),
-                                  motion.ray_seconds if moving else np.zeros(0))
+    normal = lidar._face_normals(got[2], got[1], np.cos(parts.yaw), np.sin(parts.yaw))
     np.testing.assert_array_equal(normal, numpy_face_normals(got[1], origins, dirs, parts, motion))
+    assert {0, 1, 2, 3} < set(got[2][got[2] >= 0].tolist())  # through the four sides and a horizontal face
 
 
 def numpy_face_normals(part_best, origins, dirs, parts: Parts, motion):
