@@ -376,6 +376,18 @@ def _cos_incidence(rays, on_part, normal, dirs):
 
 
 @numba.njit(cache=True)
+def _points_along(origins, dirs, rays, t):
+    """Points (N,3) ``t`` (N,) metres along rays ``rays`` (N,) from their origins (R,3):
+    ``origins[rays] + t[:, None] * dirs[rays]`` without the gathered copies."""
+    points = np.empty((len(rays), 3))
+    for i in range(len(rays)):
+        r = rays[i]
+        for k in range(3):
+            points[i, k] = origins[r, k] + t[i] * dirs[r, k]
+    return points
+
+
+@numba.njit(cache=True)
 def _ground_points(origin_xy, origins, dirs, rays, t):
     """Global xy (N,2) where rays ``rays`` (N,) meet the ground ``t`` (N,) metres along them;
     origins (R,3) relative to origin_xy (2,) (the arithmetic of ``origin + o + t * d``)."""
@@ -601,7 +613,7 @@ def scan_lidar(parts: Parts, lidar_to_world, rng: np.random.Generator, ground_re
     points = np.zeros((len(dirs), 5), np.float32)
     points[:, 4] = ring
     points[idx, 3] = np.clip(np.round(255.0 * reflect[keep] * cos_inc[keep] * gain[keep]), 0, 255)
-    points[idx, :3] = (origins[idx] + t_noisy[:, None] * dirs[idx]) @ reference[:3, :3]
+    points[idx, :3] = _points_along(origins, dirs, idx, t_noisy) @ reference[:3, :3]
     owner = np.full(len(dirs), -1, np.int32)
     owner[idx] = np.where(on_part[keep], parts.owner[part_hit[keep]] if len(parts) else -1, -1)
     returned = np.zeros(len(dirs), bool)

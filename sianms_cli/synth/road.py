@@ -168,6 +168,18 @@ class Route:
 
 
 @numba.njit(cache=True)
+def _straight_coordinates(x, y, x0, y0, cos, sin):
+    """Coordinates along (u) and across (d) a straight segment from (x0, y0) heading (cos, sin)
+    of points (x, y) (P,)."""
+    u, d = np.empty(len(x)), np.empty(len(x))
+    for i in range(len(x)):
+        dx, dy = x[i] - x0, y[i] - y0
+        u[i] = dx * cos + dy * sin
+        d[i] = -dx * sin + dy * cos
+    return u, d
+
+
+@numba.njit(cache=True)
 def _keep_nearer(u, d, start, length, best_cost, best_s, best_d):
     """Make a segment the nearest so far (best_cost, best_s, best_d (P,), in place) of the points
     nearer to it than to every earlier one: u, d (P,) their coordinates along and across it
@@ -196,10 +208,7 @@ def _segment_coordinates(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Unclipped arc length ``u`` along one segment and lateral offset ``d`` of points (x, y) (P,)."""
     if abs(curvature) < 1e-9:
-        dx, dy = x - start[0], y - start[1]
-        u = dx * np.cos(heading) + dy * np.sin(heading)
-        d = -dx * np.sin(heading) + dy * np.cos(heading)
-        return u, d
+        return _straight_coordinates(x, y, start[0], start[1], np.cos(heading), np.sin(heading))
     radius = 1.0 / curvature
     center = start + radius * np.array([-np.sin(heading), np.cos(heading)])
     dx, dy = x - center[0], y - center[1]
