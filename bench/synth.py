@@ -14,13 +14,14 @@ own) and prints, next to the absolute figures, two ratios measured in the same r
   near 1.0 because scenes are streamed to disk;
 - with ``--reference-tree DIR`` (a checkout of another commit, e.g. from ``git worktree add``),
   the wall time of ``sianms synth`` from that tree against this one, each run by the command
-  line in a fresh process, one after the other, same flags: what a speed target set against
-  an earlier version ("within 1.5x of ...") is read from.
+  line in a fresh process, one after the other, same flags (``--rounds N``: N such pairs and
+  the median of their ratios): what a speed target set against an earlier version ("within
+  1.5x of ...") is read from.
 
     python bench/synth.py                       # v1.0-mini, 10 scenes, image scale 0.5
     python bench/synth.py --scenes 2 --workers 2
     git worktree add ../sianms-ref 7307555 && \
-        python bench/synth.py --image-scale 0.25 --workers 2 --reference-tree ../sianms-ref --only-reference
+        python bench/synth.py --image-scale 0.25 --workers 2 --reference-tree ../sianms-ref --only-reference --rounds 3
 """
 
 from __future__ import annotations
@@ -86,14 +87,23 @@ def measure_cli(tree: Path, scenes: int, image_scale: float, workers: int, seed:
         return time.perf_counter() - start
 
 
-def compare_with_reference(reference: Path, scenes: int, image_scale: float, workers: int) -> None:
-    """Print this tree's synth time against the reference tree's, measured one after the other."""
+def compare_with_reference(reference: Path, scenes: int, image_scale: float, workers: int, rounds: int) -> None:
+    """Print this tree's synth time against the reference tree's, measured one after the other,
+    ``rounds`` times; with several, the median of the rounds' ratios (a shared machine's speed
+    drifts between minutes, so only the two runs of one round are compared with each other)."""
     here = Path(__file__).resolve().parents[1]
     seed = 2026
-    before = measure_cli(reference, scenes, image_scale, workers, seed)
-    now = measure_cli(here, scenes, image_scale, workers, seed)
-    print(f"sianms synth --scenes {scenes} --image-scale {image_scale} --workers {workers} --seed {seed}: "
-          f"reference tree {reference} {before:.1f} s, this tree {now:.1f} s -> {now / before:.2f}x the reference")
+    print(f"sianms synth --scenes {scenes} --image-scale {image_scale} --workers {workers} --seed {seed}, "
+          f"reference tree {reference}:")
+    ratios = []
+    for index in range(rounds):
+        before = measure_cli(reference, scenes, image_scale, workers, seed)
+        now = measure_cli(here, scenes, image_scale, workers, seed)
+        ratios.append(now / before)
+        print(f"  round {index + 1}: reference {before:.1f} s, this tree {now:.1f} s "
+              f"-> {now / before:.2f}x the reference", flush=True)
+    if rounds > 1:
+        print(f"  median of {rounds} rounds: {np.median(ratios):.2f}x (range {min(ratios):.2f}-{max(ratios):.2f}x)")
 
 
 def measure_io_floor(samples: int, image_scale: float) -> float:
@@ -164,9 +174,10 @@ def main() -> None:
                         help="scene length of the two runs that compare peak memory")
     parser.add_argument("--reference-tree", type=Path, help="a checkout of another commit to time synth against")
     parser.add_argument("--only-reference", action="store_true", help="only the comparison with --reference-tree")
+    parser.add_argument("--rounds", type=int, default=1, help="rounds of the comparison with --reference-tree")
     args = parser.parse_args()
     if args.reference_tree is not None:
-        compare_with_reference(args.reference_tree, args.scenes, args.image_scale, args.workers)
+        compare_with_reference(args.reference_tree, args.scenes, args.image_scale, args.workers, args.rounds)
         if args.only_reference:
             return
 

@@ -245,7 +245,8 @@ def array_crossing_streets(street: Street, xy: np.ndarray) -> tuple[np.ndarray, 
     on_crossing = (np.abs(across) < 7.0) & on_arms
     pavement = (np.abs(across) < 7.0 + 4.5) & (np.abs(along) > kerb) & on_arms
     junction = on_crossing & (np.abs(along) < kerb)
-    dashes = on_crossing & (np.abs(along) > kerb) & (along - np.floor(along / 9.0) * 9.0 < 3.0) & (np.abs(across) < 0.08)
+    on_dash = along - np.floor(along / 9.0) * 9.0 < 3.0
+    dashes = on_crossing & (np.abs(along) > kerb) & on_dash & (np.abs(across) < 0.08)
     return tuple(mask.any(axis=1) for mask in (on_crossing, pavement, junction, dashes))
 
 
