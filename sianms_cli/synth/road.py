@@ -294,6 +294,7 @@ class Street:
         """Whether ground points (P,2) lie on a crossing street's carriageway, on its pavement,
         inside a junction (its carriageway between the route's kerbs) and on its dashed centre
         line: four (P,) masks, each over every crossing street."""
+        xy = np.asarray(xy, dtype=float)
         centers = np.array([i.center for i in self.intersections], dtype=float).reshape(-1, 2)
         headings = np.array([i.heading for i in self.intersections], dtype=float)
         limits = np.array([i.along_limits() for i in self.intersections], dtype=float).reshape(-1, 2)
@@ -469,6 +470,7 @@ def value_noise(xy: np.ndarray, scale: float, seed: int) -> np.ndarray:
 
 @numba.njit(cache=True)
 def _value_noise(x, y, scale, seed):
+    """:func:`value_noise` of points (x, y) (P,)."""
     noise = np.empty(len(x))
     for i in range(len(x)):
         gx, gy = x[i] / scale, y[i] / scale
