@@ -210,7 +210,8 @@ def _interval(stats: Mapping[str, Any], column: str) -> str:
     if stats["ci95"] is None:
         return "-"
     low, high = stats["ci95"]
-    return f"[{_signed(low, figure_digits(column))}, {_signed(high, figure_digits(column))}]"
+    digits = figure_digits(column)
+    return f"[{_signed(low, digits)}, {_signed(high, digits)}]"
 
 
 def document(content: Mapping[str, Any]) -> list[Block]:

@@ -295,11 +295,16 @@ class Street:
         inside a junction (its carriageway between the route's kerbs) and on its dashed centre
         line: four (P,) masks, each over every crossing street."""
         xy = np.asarray(xy, dtype=float)
-        centers = np.array([i.center for i in self.intersections], dtype=float).reshape(-1, 2)
+        return _crossing_streets(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]),
+                                 *self._crossing_frames, self.section.kerb)
+
+    @cached_property
+    def _crossing_frames(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The crossing streets' centres (K,2), the cosine and sine of their headings (K,) and
+        their along-street limits (K,2): what every ground look-up of the street reads."""
         headings = np.array([i.heading for i in self.intersections], dtype=float)
-        limits = np.array([i.along_limits() for i in self.intersections], dtype=float).reshape(-1, 2)
-        return _crossing_streets(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]), centers,
-                                 np.cos(headings), np.sin(headings), limits, self.section.kerb)
+        return (np.array([i.center for i in self.intersections], dtype=float).reshape(-1, 2), np.cos(headings),
+                np.sin(headings), np.array([i.along_limits() for i in self.intersections], dtype=float).reshape(-1, 2))
 
     def near_intersection(self, s: np.ndarray, margin: float) -> np.ndarray:
         """Whether route arc lengths ``s`` lie within a junction (the crossing street, or the
