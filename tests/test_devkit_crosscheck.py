@@ -16,13 +16,13 @@ repository root, or the interpreter named by ``SIANMS_DEVKIT_PYTHON``.
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from devkit_venv import DEVKIT_MARKS, DEVKIT_PYTHON, REPO_ROOT
 
 from sianms_cli.geometry.boxes import box_corners
 from sianms_cli.geometry.projection import BoxVisibility, box_in_image, view_points
@@ -30,8 +30,6 @@ from sianms_cli.geometry.transforms import apply_transform, global_to_sensor, se
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.splits import split_scene_names
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-DEVKIT_PYTHON = Path(os.environ.get("SIANMS_DEVKIT_PYTHON") or REPO_ROOT / ".devkit-venv" / "bin" / "python")
 DUMP_SCRIPT = REPO_ROOT / "scripts" / "devkit_dump.py"
 
 VERSION = "v1.0-mini"
@@ -44,14 +42,7 @@ SYNTH_ARGS = ["--version", VERSION, "--scenes", "2", "--scene-seconds", "8", "--
 PAPER_CLASSES = ("car", "pedestrian", "bicycle")
 NSWEEPS = 10  # sweeps per key frame stacked by from_file_multisweep (the dump's default)
 
-pytestmark = [
-    pytest.mark.devkit,
-    pytest.mark.skipif(
-        not DEVKIT_PYTHON.is_file(),
-        reason=f"nuscenes-devkit interpreter not found at {DEVKIT_PYTHON}: run scripts/devkit_venv.sh "
-        "or set SIANMS_DEVKIT_PYTHON",
-    ),
-]
+pytestmark = DEVKIT_MARKS
 
 
 def run_checked(command: list[str], what: str, timeout: float) -> None:

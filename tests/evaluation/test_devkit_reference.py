@@ -14,7 +14,8 @@ import math
 import numpy as np
 import pytest
 
-from metrics_reference import needs_devkit, reference_script
+from devkit_venv import needs_devkit
+from metrics_reference import reference_script
 from sianms_cli.evaluation import evaluate, load_config, read_results
 
 SUMMARY_KEYS = ("label_aps", "mean_dist_aps", "mean_ap", "label_tp_errors", "tp_errors", "tp_scores", "nd_score")

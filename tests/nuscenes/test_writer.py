@@ -1,10 +1,10 @@
 import hashlib
 import json
 import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest
+from devkit_venv import DEVKIT_PYTHON, REPO_ROOT, needs_devkit
 from PIL import Image
 
 from sianms_cli.errors import OutputExistsError
@@ -161,13 +161,10 @@ def test_write_splits(tmp_path):
 
 
 @pytest.mark.devkit
+@needs_devkit
 def test_the_official_devkit_loads_and_evaluates_the_written_dataset(tmp_path, tiny_dataroot):
-    repo = Path(__file__).resolve().parents[2]
-    devkit_python = repo / ".devkit-venv" / "bin" / "python"
-    if not devkit_python.exists():
-        pytest.skip("no devkit venv (scripts/devkit_venv.sh)")
     out = tmp_path / "dump.json"
-    done = subprocess.run([str(devkit_python), str(repo / "scripts" / "devkit_dump.py"),
+    done = subprocess.run([str(DEVKIT_PYTHON), str(REPO_ROOT / "scripts" / "devkit_dump.py"),
                            str(tiny_dataroot), VERSION, str(out), "--split", "mini_val"],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr[-3000:]

@@ -6,23 +6,19 @@ errors with `sianms metrics`' evaluator on the same file. Skipped without the de
 """
 
 import json
-import os
 import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest
+from devkit_venv import DEVKIT_MARKS, DEVKIT_PYTHON, REPO_ROOT
 
 from sianms_cli.evaluation.evaluate import evaluate
 from sianms_cli.evaluation.results import read_results
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.pipelines.job import EvalConfig, run
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
-DEVKIT_PYTHON = Path(os.environ.get("SIANMS_DEVKIT_PYTHON") or REPO_ROOT / ".devkit-venv" / "bin" / "python")
 DUMP_SCRIPT = REPO_ROOT / "scripts" / "devkit_dump.py"
-pytestmark = [pytest.mark.devkit, pytest.mark.skipif(not DEVKIT_PYTHON.is_file(), reason="no nuscenes-devkit venv: "
-                                                     "run scripts/devkit_venv.sh or set SIANMS_DEVKIT_PYTHON")]
+pytestmark = DEVKIT_MARKS
 
 
 def test_results_files_pass_the_devkit_with_the_same_metrics(eval_inputs, tmp_path):

@@ -11,23 +11,15 @@ Skipped when the devkit interpreter is absent.
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-from pathlib import Path
 
 import numpy as np
-import pytest
+from devkit_venv import DEVKIT_MARKS, DEVKIT_PYTHON
 
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.reporting.image_boxes import annotation_image_boxes
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
-DEVKIT_PYTHON = Path(os.environ.get("SIANMS_DEVKIT_PYTHON") or REPO_ROOT / ".devkit-venv" / "bin" / "python")
-
-pytestmark = [
-    pytest.mark.devkit,
-    pytest.mark.skipif(not DEVKIT_PYTHON.is_file(), reason=f"nuscenes-devkit interpreter not found at {DEVKIT_PYTHON}"),
-]
+pytestmark = DEVKIT_MARKS
 
 DUMP = """
 import json, sys

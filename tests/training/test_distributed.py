@@ -20,12 +20,18 @@ FPOINTNET = ["--epochs", "2", "--num-points", "64", "--num-object-points", "32",
              "--min-box-height", "0", "--device", "cpu", "--quiet"]
 
 
+def torchrun_two(tmp_path, *arguments):
+    """Two local processes of one thread under torchrun, its logs under tmp_path (left to itself, torchrun
+    leaves a torchelastic_* folder in /tmp on every launch)."""
+    return subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",
+                           "--log-dir", str(tmp_path / "torchrun-logs"), *arguments],
+                          env={**os.environ, "OMP_NUM_THREADS": "1"}, capture_output=True, text=True)
+
+
 def train_twice(command, tmp_path):
     """(checkpoint of 2 gloo processes, checkpoint of 1 process with --streams 2) of a `sianms train` command."""
     environment = {**os.environ, "OMP_NUM_THREADS": "1"}
-    done = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",
-                           "-m", "sianms_cli", *command, "--out", str(tmp_path / "ddp")], env=environment,
-                          capture_output=True, text=True)
+    done = torchrun_two(tmp_path, "-m", "sianms_cli", *command, "--out", str(tmp_path / "ddp"))
     assert done.returncode == 0, done.stderr[-3000:]
     assert done.stdout.count("trained epochs 1-2 into") == 1, "rank 0 alone reports"
     subprocess.run([sys.executable, "-m", "sianms_cli", *command, "--streams", "2", "--out", str(tmp_path / "one")],
@@ -60,9 +66,7 @@ def test_a_siamese_sweep_under_torchrun_is_tabulated_by_rank_0(two_shard_cache, 
     command = ["train", "siamese", "--cache", str(two_shard_cache), "--val-cache", str(tiny_caches[1]),
                "--sweep-dims", "2,4", "--epochs", "1", "--conv-channels", "8,8", "--hidden", "16", "--batch-size", "4",
                "--device", "cpu", "--quiet", "--out", str(tmp_path / "sweep")]
-    done = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",
-                           "-m", "sianms_cli", *command], env={**os.environ, "OMP_NUM_THREADS": "1"},
-                          capture_output=True, text=True)
+    done = torchrun_two(tmp_path, "-m", "sianms_cli", *command)
     assert done.returncode == 0, done.stderr[-3000:]
     assert done.stdout.count("sweep of d = 2,4") == 1
     rows = json.loads((tmp_path / "sweep" / "sweep.json").read_text())["rows"]
@@ -75,8 +79,7 @@ def test_fpointnet_steps_on_two_gloo_processes_equal_one_in_float64(tmp_path):
     script = str(Path(__file__).with_name("fpointnet_ddp_steps.py"))
     environment = {**os.environ, "OMP_NUM_THREADS": "1"}
     subprocess.run([sys.executable, script, str(tmp_path / "one.pt")], check=True, env=environment)
-    done = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",
-                           script, str(tmp_path / "two.pt")], env=environment, capture_output=True, text=True)
+    done = torchrun_two(tmp_path, script, str(tmp_path / "two.pt"))
     assert done.returncode == 0, done.stderr[-3000:]
     one, two = torch.load(tmp_path / "one.pt"), torch.load(tmp_path / "two.pt")
     assert two["losses"] == pytest.approx(one["losses"], rel=1e-8)
@@ -108,10 +111,8 @@ def test_fpointnet_two_gloo_processes_train_as_one(two_shard_cache, two_shard_da
 
 def test_streams_the_processes_cannot_share_are_one_error_line(tiny_caches, tmp_path):
     train, _ = tiny_caches
-    done = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",
-                           "-m", "sianms_cli", "train", "fpointnet", "--cache", str(train),
-                           "--out", str(tmp_path / "run"), "--streams", "3", "--device", "cpu"],
-                          env={**os.environ, "OMP_NUM_THREADS": "1"}, capture_output=True, text=True)
+    done = torchrun_two(tmp_path, "-m", "sianms_cli", "train", "fpointnet", "--cache", str(train),
+                        "--out", str(tmp_path / "run"), "--streams", "3", "--device", "cpu")
     assert done.returncode != 0
     assert ("error: --streams 3 is not a multiple of the 2 processes: each runs the same number of streams\n"
             in done.stderr)
