@@ -29,6 +29,7 @@ import orjson
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
 
 PARTIAL_SUFFIX = ".partial"
+JSON_MAX_DEPTH = 1024  # orjson refuses deeper documents; the json module would overflow the stack
 T = TypeVar("T")
 
 
@@ -97,8 +98,7 @@ class AtomicFile:
     def __init__(self, path: str | Path, *, text: bool = False) -> None:
         self.path = Path(path)
         make_folder(self.path.parent)
-        if self.path.is_dir():
-            raise OutputError(f"cannot write {self.path}: it is a folder")
+        refuse_non_file(self.path)
         self.temporary = partial_name(self.path)
         with os_errors_as_output_errors(self.path):
             descriptor = os.open(self.temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
@@ -159,11 +159,19 @@ def write_json(path: str | Path, data: Any) -> Path:
     return write_text(path, json.dumps(data, indent=2, sort_keys=True) + "\n")
 
 
-def check_writable_output(path: str | Path, *, overwrite: bool) -> Path:
-    """Refuse an output file that is a folder, or that exists while ``overwrite`` is false."""
-    path = Path(path)
+def refuse_non_file(path: Path) -> None:
+    """Refuse an output path that holds something other than a file: a folder, or a device, pipe
+    or socket (an atomic write would rename a file over ``/dev/null``)."""
     if path.is_dir():
         raise OutputError(f"cannot write {path}: it is a folder")
+    if path.exists() and not path.is_file():
+        raise OutputError(f"cannot write {path}: not a regular file")
+
+
+def check_writable_output(path: str | Path, *, overwrite: bool) -> Path:
+    """Refuse an output file that is a folder or a device, or that exists while ``overwrite`` is false."""
+    path = Path(path)
+    refuse_non_file(path)
     if path.exists() and not overwrite:
         raise OutputExistsError(f"{path} exists; pass --overwrite to replace it")
     return path
@@ -200,6 +208,8 @@ def decode_json(path: str | Path, data: bytes) -> Any:
         return json.loads(text)
     except json.JSONDecodeError as error:
         raise DataFormatError(path, f"invalid JSON at line {error.lineno}, column {error.colno}: {error.msg}") from None
+    except RecursionError:
+        raise DataFormatError(path, f"invalid JSON: nested deeper than {JSON_MAX_DEPTH} levels") from None
 
 
 def sha256_of(path: str | Path) -> str:
@@ -305,8 +315,9 @@ def exclusive_lock(lock_path: str | Path, *, what: str, blocking: bool = False) 
                 raise OutputError(f"cannot lock {describe_os_error(error, lock_path)}") from None
             holder = os.pread(descriptor, 32, 0).decode(errors="replace").strip() or "unknown"
             raise FolderBusyError(f"{what} is in use by another sianms process (pid {holder})") from None
-        os.ftruncate(descriptor, 0)
-        os.pwrite(descriptor, f"{os.getpid()}\n".encode(), 0)
+        with os_errors_as_output_errors(lock_path):
+            os.ftruncate(descriptor, 0)
+            os.pwrite(descriptor, f"{os.getpid()}\n".encode(), 0)
         yield
     finally:
         os.close(descriptor)

@@ -105,6 +105,17 @@ def test_check_writable_output_refuses_existing_file_without_overwrite(tmp_path)
     assert io.check_writable_output(path, overwrite=True) == path
 
 
+def test_a_device_or_pipe_is_never_replaced(tmp_path):
+    """An atomic write renames a file over its destination: over /dev/null that would make it a file."""
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    with pytest.raises(io.OutputError, match="cannot write .*pipe: not a regular file"):
+        io.check_writable_output(fifo, overwrite=True)
+    with pytest.raises(io.OutputError, match="cannot write .*pipe: not a regular file"):
+        io.write_bytes(fifo, b"x")
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode) and [p.name for p in tmp_path.iterdir()] == ["pipe"]
+
+
 def test_read_json_names_file_line_and_column(tmp_path):
     path = tmp_path / "bad.json"
     path.write_text('{\n  "a": 1,\n  "b": }\n')
@@ -115,6 +126,14 @@ def test_read_json_names_file_line_and_column(tmp_path):
     (tmp_path / "latin.json").write_bytes(b'"\xe9"')
     with pytest.raises(DataFormatError, match="not valid UTF-8 at byte 1"):
         io.read_json(tmp_path / "latin.json")
+    (tmp_path / "deep.json").write_text("[" * 5000 + "]" * 5000)  # the json module would overflow the stack
+    with pytest.raises(DataFormatError, match=r"deep\.json: invalid JSON: nested deeper than 1024 levels"):
+        io.read_json(tmp_path / "deep.json")
+    (tmp_path / "deep_enough.json").write_text("[" * 1024 + "]" * 1024)
+    value, depth = io.read_json(tmp_path / "deep_enough.json"), 1
+    while value:
+        value, depth = value[0], depth + 1
+    assert depth == 1024
 
 
 def test_publish_folder_replaces_and_leaves_nothing_aside(tmp_path):

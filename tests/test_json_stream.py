@@ -219,6 +219,7 @@ def test_progress_counts_every_character(tmp_path):
     ('[1]', 1, 1, "expected '{' to open the top-level object, found '['"),
     ('{"a": [1, 2', 1, 12, "Expecting ',' delimiter"),
     ('\n\n', 3, 1, "expected '{' to open the top-level object, found 'the end of the file'"),
+    ('{"a": ' + '[' * 5000 + ']' * 5000 + '}', 1, 7, "nested deeper than 1024 levels"),
 ])
 def test_stream_errors_name_line_and_column(tmp_path, chunk_chars, text, line, column, message):
     path = _write(tmp_path, text)

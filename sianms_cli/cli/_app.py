@@ -69,7 +69,9 @@ class ProgressBar:
         if self.bar is not None:
             self.bar.close()
         scale = unit == "B"
-        self.bar = tqdm(total=total, unit=unit, unit_scale=scale, desc=description, leave=False)
+        # disable=None: no bar when stderr is not a terminal; in a log its carriage returns would
+        # put the bar in front of the error line
+        self.bar = tqdm(total=total, unit=unit, unit_scale=scale, desc=description, leave=False, disable=None)
 
     def advance(self, amount: float = 1) -> None:
         if self.bar is not None:

@@ -66,6 +66,9 @@ def eval_split(db: NuScenesDB, split: str) -> EvalSplit:
     in_split = np.array([name in names for name in scenes.column("name").tolist()], dtype=bool)
     samples = db.table("sample")
     rows = np.flatnonzero(in_split[samples.rows("scene_token")]) if len(samples) else np.zeros(0, np.int64)
+    if len(rows) == 0 and split not in PREDEFINED_SPLITS:
+        raise DataFormatError(db.table_root / "splits.json", f"none of the split's {len(names)} scenes has a sample "
+                              f"in {db.table_root / 'scene.json'}", field=split)
     if len(rows) == 0:
         raise SianmsError(
             f"split '{split}' holds no sample of {db.table_root} (its {len(names)} scenes are not in scene.json)"

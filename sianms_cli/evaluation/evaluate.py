@@ -52,7 +52,7 @@ from sianms_cli.evaluation.regions import (
     region_mask,
     resolve_regions,
 )
-from sianms_cli.evaluation.report import FilterCounts, MetricsReport, RegionMetrics, write_report
+from sianms_cli.evaluation.report import FilterCounts, MetricsReport, RegionMetrics, report_json
 from sianms_cli.evaluation.results import (
     Results,
     ResultsFormatError,
@@ -60,7 +60,7 @@ from sianms_cli.evaluation.results import (
     read_results,
     validate_results,
 )
-from sianms_cli.io import check_writable_output, read_json, write_text
+from sianms_cli.io import AtomicFile, check_writable_output, os_errors_as_output_errors, read_json, write_text
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.tables import check_version_name
 from sianms_cli.nuscenes.rigs import sample_rigs
@@ -132,8 +132,9 @@ def run(config: MetricsConfig, out: str | Path | None = None, *, details: str | 
     ``out`` (the JSON report, :func:`~sianms_cli.evaluation.report.write_report`) and
     ``details`` (the 101-point curves of every region, :func:`write_details`) are refused
     before any work when they are a folder, the results file, the same file, or exist while
-    ``overwrite`` is false; each is written atomically. ``progress`` hears of the results
-    file's bytes read, then of the regions evaluated.
+    ``overwrite`` is false; they are written atomically together (:func:`write_together`), so a
+    run that fails to write one leaves neither. ``progress`` hears of the results file's bytes
+    read, then of the regions evaluated.
     """
     outputs = {flag: path for flag, path in (("--out", out), ("--details", details)) if path is not None}
     for flag, path in outputs.items():
@@ -157,11 +158,36 @@ def run(config: MetricsConfig, out: str | Path | None = None, *, details: str | 
 
     report = evaluate(db, split, results, detection, config.regions, progress=progress,
                       inspect=keep_curves if details is not None else None)
-    if out is not None:
-        write_report(out, report, overwrite=overwrite)
+    texts = {Path(out): report_json(report) + "\n"} if out is not None else {}
     if details is not None:
-        write_details(details, curves, overwrite=overwrite)
+        texts[Path(details)] = details_json(curves)
+    write_together(texts, overwrite=overwrite)
     return report
+
+
+def write_together(texts: Mapping[Path, str], *, overwrite: bool = False) -> None:
+    """Write each ``{path: text}`` (UTF-8) under its temporary name, then rename them all into place.
+
+    A failure (a full disk, a file where a folder must be) leaves none of the paths written and
+    none replaced: the temporary files are removed, and a file already renamed when a later
+    rename fails is deleted. Refuses a folder, and an existing file unless ``overwrite``.
+    """
+    files: list[AtomicFile] = []
+    committed: list[Path] = []
+    try:
+        for path, text in texts.items():
+            files.append(AtomicFile(check_writable_output(path, overwrite=overwrite)))
+            with os_errors_as_output_errors(path):
+                files[-1].stream.write(text.encode("utf-8"))
+                files[-1].stream.flush()  # a full disk fails here, before anything is renamed
+        for file in files:
+            committed.append(file.commit())
+    except BaseException:
+        for file in files:
+            file.discard()
+        for path in committed:
+            path.unlink(missing_ok=True)
+        raise
 
 
 # --------------------------------------------------------------------------- curves: metrics_details.json
@@ -185,11 +211,16 @@ def write_details(path: str | Path, details: Mapping[str, Mapping[str, MetricDat
     per key); a NaN (a TP error the devkit does not measure for the class) is written as
     ``null``. Refuses a folder, and an existing file unless ``overwrite``.
     """
+    return write_text(check_writable_output(path, overwrite=overwrite), details_json(details))
+
+
+def details_json(details: Mapping[str, Mapping[str, MetricData]]) -> str:
+    """The text :func:`write_details` writes."""
     content = {region: {key: {name: [value if math.isfinite(value) else None for value in values]
                               for name, values in data.serialize().items()}
                         for key, data in by_key.items()}
                for region, by_key in details.items()}
-    return write_text(check_writable_output(path, overwrite=overwrite), json.dumps(content, allow_nan=False) + "\n")
+    return json.dumps(content, allow_nan=False) + "\n"
 
 
 def read_details(path: str | Path) -> dict[str, dict[str, MetricData]]:

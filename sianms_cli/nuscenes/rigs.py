@@ -13,6 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
+from sianms_cli.errors import DataFormatError
 from sianms_cli.geometry.rig import CameraRig
 from sianms_cli.nuscenes.loader import NuScenesDB
 
@@ -41,6 +42,11 @@ def sample_rigs(db: NuScenesDB, sample_tokens: Sequence[str]) -> tuple[list[Came
     calibrations = sample_data.rows("calibrated_sensor_token")[cameras]
     widths = sample_data.column("width")[cameras]
     heights = sample_data.column("height")[cameras]
+    for field, sizes in (("width", widths), ("height", heights)):
+        if (sizes <= 0).any():
+            row = cameras[np.flatnonzero(sizes <= 0)[0]]
+            raise DataFormatError(sample_data.path, f"a camera key frame needs a positive image {field}, "
+                                  f"got {sizes[sizes <= 0][0]}", token=str(sample_data.tokens[row]), field=field)
 
     first = np.searchsorted(owners, sample_rows, side="left")
     stop = np.searchsorted(owners, sample_rows, side="right")

@@ -25,6 +25,7 @@ pedestrian ``pedestrian.standing``, bicycle and motorcycle ``cycle.without_rider
 
 from __future__ import annotations
 
+import re
 import shutil
 import time
 from contextlib import closing
@@ -38,20 +39,28 @@ from sianms_cli.data.cache import complete_manifest
 from sianms_cli.detection2d.classes import check_classes
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_seed, check_workers
 from sianms_cli.geometry.bev import AXIS_MODES
-from sianms_cli.io import atomic_file, exclusive_lock, make_folder, read_json, release_lock, sha256_of, try_lock, write_json
+from sianms_cli.io import (PARTIAL_SUFFIX, atomic_file, exclusive_lock, make_folder, read_json, release_lock, sha256_of,
+                           try_lock, write_json)
 from sianms_cli.nuscenes.fingerprint import dataset_fingerprint
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.pipelines.finish import finish
-from sianms_cli.pipelines.methods import parse_methods, parse_thresholds
+from sianms_cli.pipelines.methods import IOU_METHODS, METHODS, parse_methods, parse_thresholds
 from sianms_cli.pipelines.scene import SceneEvaluator, SceneSettings
 from sianms_cli.prepare.job import parse_shard, split_scenes
 from sianms_cli.processes import TASK_TORCH_THREADS, task_torch_threads, worker_pool
 from sianms_cli.progress import SILENT, Progress
+from sianms_cli.reporting.report import DEFAULT_FOLDER as REPORT_FOLDER, foreign_entry, is_report_folder
 
 MARKER = "eval.json"
 SCENES = "scenes"
+PICTURES = "pictures"
 LOCK = ".eval.lock"
 KIND = "sianms-eval"
+# The files the finish stage writes beside eval.json (curves.json: before metrics_details_<method>.json).
+_METHOD = "|".join([*map(re.escape, METHODS), *(rf"{re.escape(name)}@[0-9.e+-]+" for name in IOU_METHODS)])
+_EVAL_FILE = re.compile(rf"(?:results|metrics|metrics_details)_(?:{_METHOD})\.json|table\.json|table\.md|pr_curves\.png"
+                        r"|curves\.json")
+_PARTIAL = re.compile(rf"\.(.+)\.[0-9]+\.[0-9a-f]{{8}}{re.escape(PARTIAL_SUFFIX)}")  # io.partial_name's
 
 
 @dataclass(frozen=True)
@@ -183,8 +192,10 @@ def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> bool:
     """Make ``out`` this evaluation's folder, or check that it is (under the folder lock).
 
     A folder with another evaluation's ``eval.json`` is replaced only with ``overwrite``
-    (keeping its scenes when they are this config's); a non-empty folder without one is never
-    touched. Returns whether ``out`` already holds this evaluation, complete.
+    (keeping its scenes when they are this config's), and only when everything in it is
+    something `sianms eval` writes (:func:`_is_eval_entry`: a stale report folder counts); a
+    non-empty folder without one is never touched. Returns whether ``out`` already holds this
+    evaluation, complete.
     """
     marker = out / MARKER
     entries = [entry for entry in out.iterdir() if entry.name != LOCK]
@@ -202,14 +213,39 @@ def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> bool:
                 raise OutputExistsError(f"{out} holds an evaluation with another config (differs in: "
                                         f"{', '.join(differing)}); pass --overwrite or choose another --out")
             keep_scenes = scene_part(stored.get("config", {})) == scene_part(resolved)
-            for entry in entries:
-                if entry.name != MARKER and not (keep_scenes and entry.name == SCENES):
-                    shutil.rmtree(entry) if entry.is_dir() else entry.unlink()
+            stale = sorted(entry for entry in entries
+                           if entry.name != MARKER and not (keep_scenes and entry.name == SCENES))
+            inside = [child for entry in stale if entry.name in (SCENES, PICTURES) and _is_eval_entry(entry)
+                      for child in sorted(entry.iterdir())]
+            for entry in stale + inside:  # all checked before anything is deleted
+                if not _is_eval_entry(entry, "" if entry.parent == out else entry.parent.name):
+                    raise OutputExistsError(f"{out}: not replaced: '{entry.relative_to(out)}' is not something "
+                                            "sianms eval writes; remove it yourself or choose another --out")
+            for entry in stale:
+                shutil.rmtree(entry) if entry.is_dir() else entry.unlink()
         elif stored.get("complete"):
             return True
     make_folder(out / SCENES)
     write_marker(out, resolved, {}, complete=False)
     return False
+
+
+def _is_eval_entry(entry: Path, folder: str = "") -> bool:
+    """Whether an entry of an evaluation folder (of its subfolder ``folder``: scenes, pictures) is one
+    `sianms eval` writes there, a killed write's temporary file of one, or `sianms report`'s default
+    report folder: what ``--overwrite`` may delete. Links never are."""
+    if entry.is_symlink():
+        return False
+    partial = _PARTIAL.fullmatch(entry.name)
+    name = partial.group(1) if partial else entry.name
+    if entry.is_file():
+        if folder:
+            return name.endswith({SCENES: (".parquet", ".lock"), PICTURES: (".png",)}.get(folder, ()))
+        return name in (MARKER, LOCK) or _EVAL_FILE.fullmatch(name) is not None
+    if not entry.is_dir() or partial or folder:
+        return False
+    return name in (SCENES, PICTURES) or (name == REPORT_FOLDER and is_report_folder(entry)
+                                           and foreign_entry(entry) is None)
 
 
 def write_marker(out: Path, resolved: dict[str, Any], extra: dict[str, Any], *, complete: bool) -> dict[str, Any]:

@@ -372,15 +372,15 @@ def _attribute_shares(db: NuScenesDB, prefix: str) -> dict:
 def _lidar_points_per_sweep(db: NuScenesDB, max_sweeps: int, progress: Progress) -> dict | None:
     """Points per LIDAR_TOP keyframe file, over up to ``max_sweeps`` evenly spread files.
 
-    None when not asked for (``max_sweeps`` 0) or when the dataroot has no LiDAR files (a
-    tables-only dataset).
+    None when not asked for (``max_sweeps`` 0) or when the dataroot has none of those files (a
+    tables-only dataset); some of them missing is an error naming the first.
     """
     sample_data = db.table("sample_data")
     tokens = sample_data.tokens[sample_data.column("is_key_frame") & (db.sample_data_channels() == "LIDAR_TOP")]
     if max_sweeps <= 0 or len(tokens) == 0:
         return None
     chosen = [tokens[i] for i in np.unique(np.linspace(0, len(tokens) - 1, min(max_sweeps, len(tokens))).astype(int))]
-    if not db.data_path(chosen[0]).exists():
+    if not any(db.data_path(token).exists() for token in chosen):
         return None
     progress.start(len(chosen), "sweep", "reading LiDAR")
     counts = np.zeros(len(chosen), dtype=np.int64)

@@ -42,6 +42,7 @@ from sianms_cli.reporting.eval_table import (
     PAPER_TABLE_I,
     REGIONS_SHOWN,
     REID_WRONG_COLUMNS,
+    REID_WRONG_FIGURES,
     format_cell,
     format_ratio,
     pair_label,
@@ -53,6 +54,14 @@ SCHEMA = "sianms-report"
 RUNS_SCHEMA = "sianms-runs-report"  # runs_report's; either kind of report folder may be replaced by the other
 SCHEMA_VERSION = 1
 REPORT_FILE = "report.json"
+MARKDOWN_FILE = "report.md"
+HTML_FILE = "report.html"
+PR_CURVES_FILE = "pr_curves.png"
+TP_CURVES_FILE = "tp_curves.png"
+REPORT_ENTRIES = frozenset({REPORT_FILE, MARKDOWN_FILE, HTML_FILE, PR_CURVES_FILE, TP_CURVES_FILE})
+"""Every name either kind of report writes into its folder (runs_report: the first three), all plain files.
+The folder is built in a staging folder beside it (io.build_folder), so nothing else, hidden or not, is ever
+left inside it: any other entry is the user's and ``--overwrite`` must not delete it."""
 DEFAULT_FOLDER = "report"  # inside the evaluation folder
 EVAL_KIND = "sianms-eval"  # eval.json's "kind": sianms_cli.pipelines.job.KIND, not imported since job loads torch
 
@@ -66,6 +75,7 @@ DEFAULT_ALLOWANCES: Mapping[str, float] = MappingProxyType({
 ALLOWANCE_OF = {"AP": "ap", "ATE": "ate", "ASE": "ase", "AOE": "aoe"}
 HIGHER_IS_BETTER = {"AP"}
 REID_FIGURES = ("precision", "recall", "f1")
+REID_COUNTS = ("pairs_matched", "pairs_correct", "pairs_true", *REID_WRONG_FIGURES)
 COMPARABLE_FIELDS = ("split", "split_scenes", "dataset_sha256", "methods", "nms_sweep", "axis_mode", "sianms_classes",
                      "max_distance", "seed")
 FINGERPRINT_FIELDS = ("dis_thr", "cache_sha256", "siamese_sha256", "fpointnet_sha256")
@@ -157,7 +167,7 @@ class Report:
 
     @property
     def html(self) -> Path:
-        return self.out / "report.html"
+        return self.out / HTML_FILE
 
 
 # --------------------------------------------------------------------------- reading
@@ -237,11 +247,21 @@ def _object(value: Any, path: Path, field: str) -> dict:
 
 
 def _number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
+    """A JSON number, finite: NaN and infinity (which Python's json reads) are no figure."""
+    return (isinstance(value, (int, float)) and not isinstance(value, bool)
+            and (isinstance(value, int) or math.isfinite(value)))
 
 
 def _number_or_none(value: Any) -> bool:
     return value is None or _number(value)
+
+
+def _count(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def _names(value: Any) -> bool:
+    return isinstance(value, list) and all(isinstance(item, str) for item in value)
 
 
 def _check_table(table: Any, path: Path) -> dict:
@@ -251,21 +271,44 @@ def _check_table(table: Any, path: Path) -> dict:
         if name not in table:
             raise DataFormatError(path, "missing", field=name)
     methods, name = table["methods"], table["table_class"]
-    if not isinstance(methods, list) or not methods or not all(isinstance(m, str) for m in methods):
+    if not isinstance(name, str):
+        raise DataFormatError(path, "must be a class name", field="table_class")
+    if not _names(table["classes"]):
+        raise DataFormatError(path, "must be a list of class names", field="classes")
+    if "pair_regions" in table and not _names(table["pair_regions"]):  # table.json's; report.json has none
+        raise DataFormatError(path, "must be a list of region names", field="pair_regions")
+    if not _names(methods) or not methods:
         raise DataFormatError(path, "must be a non-empty list of method names", field="methods")
+    _object(table["units"], path, "units")
+    for method, boxes in _object(table["boxes"], path, "boxes").items():
+        if not _count(boxes):
+            raise DataFormatError(path, "must be a whole number >= 0", field=f"boxes.{method}")
+    regions = _object(table["regions"], path, "regions")
     for region, _ in REGIONS_SHOWN:
         for method in methods:
             field = f"regions.{region}.{method}.{name}"
-            cell = _nested(table["regions"], region, method, name)
+            cell = _nested(regions, region, method, name)
             if not isinstance(cell, dict):
                 raise DataFormatError(path, "missing", field=field)
             for column in COLUMNS + ("gt", "pred"):
                 if column not in cell or not _number_or_none(cell[column]):
                     raise DataFormatError(path, "must be a number or null", field=f"{field}.{column}")
+    for family, method in _object(table["best_nms"], path, "best_nms").items():
+        if method not in methods:
+            raise DataFormatError(path, f"must be one of the methods, got {method!r}", field=f"best_nms.{family}")
+    for method, by_region in _object(table["duplicates"], path, "duplicates").items():
+        for region, counts in _object(by_region, path, f"duplicates.{method}").items():
+            for class_name, count in _object(counts, path, f"duplicates.{method}.{region}").items():
+                if not _count(count):
+                    raise DataFormatError(path, "must be a whole number >= 0",
+                                          field=f"duplicates.{method}.{region}.{class_name}")
     for matcher, figures in _object(table["reidentification"], path, "reidentification").items():
         for figure in REID_FIGURES:
             if not _number_or_none(_object(figures, path, f"reidentification.{matcher}").get(figure, "absent")):
                 raise DataFormatError(path, "must be a number or null", field=f"reidentification.{matcher}.{figure}")
+        for figure in REID_COUNTS:  # shown as they are; an older evaluation may lack some
+            if figure in figures and not _count(figures[figure]):
+                raise DataFormatError(path, "must be a whole number >= 0", field=f"reidentification.{matcher}.{figure}")
     return table
 
 
@@ -512,12 +555,12 @@ def draw_figures(folder: Path, summary: Mapping[str, Any], eval_folder: Path, ou
                 if key not in details.get(region, {}):
                     raise DataFormatError(path, "missing", field=f"{region}.{key}")
             curves[method] = {region: details[region][key] for region in regions}
-        draw_pr_curves(folder / "pr_curves.png", curves, name, regions)
-        draw_tp_curves(folder / "tp_curves.png", curves, name, regions, cfg["min_recall"])
+        draw_pr_curves(folder / PR_CURVES_FILE, curves, name, regions)
+        draw_tp_curves(folder / TP_CURVES_FILE, curves, name, regions, cfg["min_recall"])
         figures += [Figure(f"Precision against recall, {name} at {cfg['dist_th_tp']} m, per method", 
-                           folder / "pr_curves.png", "pr_curves.png"),
+                           folder / PR_CURVES_FILE, PR_CURVES_FILE),
                     Figure(f"TP errors against recall, {name} at {cfg['dist_th_tp']} m (the reported error is the "
-                           f"mean right of recall {cfg['min_recall']})", folder / "tp_curves.png", "tp_curves.png")]
+                           f"mean right of recall {cfg['min_recall']})", folder / TP_CURVES_FILE, TP_CURVES_FILE)]
     for picture in sorted((eval_folder / "pictures").glob("*.png")):
         figures.append(Figure(f"Bird's-eye view of sample {picture.stem}, one panel per method", picture,
                               os.path.relpath(picture.resolve(), out.resolve())))
@@ -536,8 +579,16 @@ def is_report_folder(folder: Path) -> bool:
     return isinstance(content, dict) and content.get("schema") in (SCHEMA, RUNS_SCHEMA)
 
 
+def foreign_entry(folder: Path) -> Path | None:
+    """The first entry of ``folder`` (by name) that no report writes (:data:`REPORT_ENTRIES`, plain files; a
+    link or a folder never is), or None when every entry is a report's."""
+    return next((entry for entry in sorted(folder.iterdir())
+                 if entry.name not in REPORT_ENTRIES or entry.is_symlink() or not entry.is_file()), None)
+
+
 def check_output(out: Path, overwrite: bool) -> None:
-    """Refuse ``out`` unless it is new, empty, or (with ``overwrite``) a report folder."""
+    """Refuse ``out`` unless it is new, empty, or (with ``overwrite``) a report folder holding nothing
+    but what a report writes (:func:`foreign_entry`): replacing it deletes every entry."""
     if out.exists() and not out.is_dir():
         raise OutputExistsError(f"{out} exists and is not a folder; choose another --out")
     if not out.is_dir() or not any(out.iterdir()):
@@ -545,6 +596,10 @@ def check_output(out: Path, overwrite: bool) -> None:
     if not is_report_folder(out):
         raise OutputExistsError(f"{out} is not empty and is not a sianms report (no {REPORT_FILE} of schema "
                                 f"'{SCHEMA}' or '{RUNS_SCHEMA}'); choose another --out")
+    foreign = foreign_entry(out)
+    if foreign is not None:
+        raise OutputExistsError(f"{out}: not replaced: '{foreign.name}' is not something sianms report writes; "
+                                "remove it yourself or choose another --out")
     if not overwrite:
         raise OutputExistsError(f"{out} holds a report; pass --overwrite to replace it")
     if is_inside_working_folder(out):
@@ -556,8 +611,8 @@ def write_report_files(folder: Path, title: str, blocks: list[Block], content: M
     returns the Markdown."""
     markdown = render_markdown(title, blocks)
     write_text(folder / REPORT_FILE, json.dumps(content, indent=2, allow_nan=False) + "\n")
-    write_text(folder / "report.md", markdown)
-    write_text(folder / "report.html", render_html(title, blocks))
+    write_text(folder / MARKDOWN_FILE, markdown)
+    write_text(folder / HTML_FILE, render_html(title, blocks))
     return markdown
 
 

@@ -53,7 +53,7 @@ from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, c
 from sianms_cli.geometry.quaternion import matrix_to_quat, yaw_to_quat
 from sianms_cli.geometry.transforms import make_transform
 from sianms_cli.nuscenes.splits import splits_for_version
-from sianms_cli.nuscenes.tables import CAMERA_CHANNELS, SENSORS, check_version_name
+from sianms_cli.nuscenes.tables import CAMERA_CHANNELS, SENSORS, TABLE_NAMES, check_version_name
 from sianms_cli.nuscenes.sensors import write_jpeg, write_pcd_bin
 from sianms_cli.nuscenes.writer import DatasetWriter, attribute_token, category_token, make_token
 from sianms_cli.processes import worker_pool
@@ -92,6 +92,7 @@ from sianms_cli.synth.world import (
 MARKER_NAME = "sianms-synth.json"  # provenance marker at the dataroot's top
 MARKER_KIND = "sianms synth dataroot"
 DATAROOT_FOLDERS = ("samples", "sweeps", "maps")  # a dataroot's data folders
+VERSION_FILES = frozenset({*(f"{name}.json" for name in TABLE_NAMES), "splits.json"})  # what synth writes there
 
 SENSOR_MODES = ("all", "none")
 RENDER_RADIUS = 130.0  # objects farther than this from the ego are not drawn or scanned
@@ -263,9 +264,10 @@ def _check_output(out: Path, *, overwrite: bool) -> None:
                                 f"sianms synth output (it holds '{entries[0].name}'); remove it yourself or "
                                 "choose another --out")
     for entry in entries:
-        if not _is_synth_entry(entry, version):
-            raise OutputExistsError(f"{out}: not replaced: '{entry.name}' is not something sianms synth writes; "
-                                    "remove it yourself or choose another --out")
+        foreign = _foreign_within(entry, version)
+        if foreign is not None:
+            raise OutputExistsError(f"{out}: not replaced: '{foreign.relative_to(out)}' is not something sianms "
+                                    "synth writes; remove it yourself or choose another --out")
 
 
 def _marked_version(marker_path: Path) -> str | None:
@@ -281,13 +283,34 @@ def _marked_version(marker_path: Path) -> str | None:
     return version if isinstance(version, str) else None
 
 
-def _is_synth_entry(entry: Path, version: str) -> bool:
-    """Whether a top-level entry of a marked dataroot is one synth writes (links never are)."""
+def _foreign_within(entry: Path, version: str) -> Path | None:
+    """The first path at or under a top-level entry of a marked dataroot that synth does not
+    write (links never are), or None: publishing deletes the whole tree, and a user may have put
+    things into synth's folders (the map expansion goes into ``maps/``)."""
     if entry.is_symlink():
-        return False
+        return entry
     if entry.name == MARKER_NAME:
-        return entry.is_file()
-    return entry.name in (version, *DATAROOT_FOLDERS) and entry.is_dir()
+        return None if entry.is_file() else entry
+    if entry.name not in (version, *DATAROOT_FOLDERS) or not entry.is_dir():
+        return entry
+    if entry.name == version:
+        return _first_not_matching(entry, lambda file: file.name in VERSION_FILES)
+    if entry.name == "maps":
+        return _first_not_matching(entry, lambda file: file.suffix == ".png")
+    for channel in sorted(entry.iterdir()):
+        suffix = ".jpg" if channel.name in CAMERA_CHANNELS else ".pcd.bin" if channel.name == "LIDAR_TOP" else None
+        if suffix is None or channel.is_symlink() or not channel.is_dir():
+            return channel
+        foreign = _first_not_matching(channel, lambda file: file.name.endswith(suffix))
+        if foreign is not None:
+            return foreign
+    return None
+
+
+def _first_not_matching(folder: Path, is_synth_file: Callable[[Path], bool]) -> Path | None:
+    """The first entry of ``folder`` that is not a plain file ``is_synth_file`` accepts, or None."""
+    return next((entry for entry in sorted(folder.iterdir())
+                 if entry.is_symlink() or not entry.is_file() or not is_synth_file(entry)), None)
 
 
 def _marker(config: SynthConfig, names: list[str]) -> dict:

@@ -50,12 +50,9 @@ import csv
 import io
 import math
 import os
-import pickle
 import random
 import shutil
-import struct
 import warnings
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Sequence
@@ -235,9 +232,11 @@ def load_checkpoint(path: str | Path, kind: str | None = None) -> Checkpoint:
         with warnings.catch_warnings():  # torch warns of a foreign pickle protocol before refusing it: say it once
             warnings.simplefilter("ignore", UserWarning)
             data = torch.load(path, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, AttributeError, ImportError, struct.error,
-            zipfile.BadZipFile) as error:
-        first_line = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+    except PermissionError as error:
+        raise DataFormatError(path, f"cannot read: {error.strerror}") from None
+    except Exception as error:  # torch's zip and pickle readers raise almost any exception on damaged bytes
+        cause = error.strerror if isinstance(error, OSError) and error.strerror else str(error).strip()
+        first_line = cause.splitlines()[0] if cause else type(error).__name__
         raise DataFormatError(path, f"not a sianms checkpoint (weights-only load refused it: {first_line})") from None
     if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
         raise DataFormatError(path, f"not a sianms checkpoint (no format '{CHECKPOINT_FORMAT}')", field="format")
@@ -404,9 +403,18 @@ class RunFolder:
             self._made_folder = not self.path.is_dir()
             make_folder(self.path)
             self._found = {entry.name for entry in self.path.iterdir()}
-            self._lock = exclusive_lock(self.path / FOLDER_LOCK_NAME, what=str(self.path))
-            self._lock.__enter__()
-            write_json(self.path / CONFIG, {"kind": self.kind, **self.config})
+            lock = exclusive_lock(self.path / FOLDER_LOCK_NAME, what=str(self.path))
+            try:
+                lock.__enter__()
+            except Exception:  # a full disk, or a folder another run holds: leave no trace of this one
+                self._remove_created()
+                raise
+            self._lock = lock
+            try:
+                write_json(self.path / CONFIG, {"kind": self.kind, **self.config})
+            except BaseException as error:
+                self.__exit__(type(error), error, error.__traceback__)
+                raise
         return self
 
     def __exit__(self, exc_type, *exc) -> None:
@@ -415,26 +423,27 @@ class RunFolder:
         # An interrupt keeps the folder: --resume restarts it and reuses what it computed.
         failed_early = (exc_type is not None and issubclass(exc_type, Exception) and self.resumed is None
                         and not self._saved)
+        lock, self._lock = self._lock, None
         try:
             if failed_early:
-                self._remove_created_entries()
+                self._remove_created()
         finally:
-            self._lock.__exit__(exc_type, *exc)
-            self._lock = None
-        if failed_early and self._made_folder:
-            try:
-                self.path.rmdir()
-            except OSError:  # something else appeared in it: not ours to delete
-                pass
+            lock.__exit__(exc_type, *exc)
 
-    def _remove_created_entries(self) -> None:
-        """Delete the folder's entries that were not there when this run started (its lock file included)."""
+    def _remove_created(self) -> None:
+        """Delete the folder's entries that were not there when this run started (its lock file
+        included), and the folder itself when this run made it."""
         for entry in self.path.iterdir():
             if entry.name not in self._found:
                 if entry.is_dir() and not entry.is_symlink():
                     shutil.rmtree(entry)
                 else:
                     entry.unlink()
+        if self._made_folder:
+            try:
+                self.path.rmdir()
+            except OSError:  # something else appeared in it: not ours to delete
+                pass
 
     def save(self, checkpoint: Checkpoint, *, curves: bool = True) -> None:
         """Write the epoch's checkpoint, then metrics.csv and (``curves``) curves.png from its history.

@@ -1,4 +1,5 @@
 import json
+import shutil
 import subprocess
 import sys
 
@@ -81,6 +82,20 @@ def test_info_max_sweeps(synthetic_dataroot):
     negative = runner.invoke(app, ["info", "--dataroot", dataroot, "--max-sweeps", "-1"])
     assert (negative.exit_code, negative.output) == (2, "error: --max-sweeps must be >= 0 (0 skips the figure), "
                                                         "got -1\n")
+
+
+def test_a_missing_lidar_file_is_one_error_line_even_when_it_is_the_first(synthetic_dataroot, tmp_path):
+    """Not read as a tables-only dataset; and with the bar on, stderr that is not a terminal gets
+    the error line alone (a bar's carriage returns would stand in front of it)."""
+    dataroot = tmp_path / "data"
+    shutil.copytree(synthetic_dataroot(), dataroot)
+    sample_data = json.loads((dataroot / "v1.0-mini" / "sample_data.json").read_text())
+    first = next(r for r in sample_data if r["is_key_frame"] and r["filename"].startswith("samples/LIDAR_TOP/"))
+    (dataroot / first["filename"]).unlink()
+    result = subprocess.run([sys.executable, "-m", "sianms_cli", "info", "--dataroot", str(dataroot)],
+                            capture_output=True, text=True)
+    assert (result.returncode, result.stderr) == (
+        2, f"error: {dataroot / first['filename']}: record {first['token']}: lidar file not found\n")
 
 
 def test_synth_refuses_a_non_empty_folder_with_exit_code_2(tmp_path):

@@ -39,3 +39,19 @@ def test_eval_cli_prints_the_table_and_reports_bad_inputs_in_one_line(eval_input
     (tmp_path / "bad.pt").write_bytes(b"junk")
     result = runner.invoke(app, arguments(eval_inputs, tmp_path / "other", "--siamese", str(tmp_path / "bad.pt")))
     assert result.exit_code == 2 and "bad.pt" in result.output and "Traceback" not in result.output
+
+
+def test_overwrite_refuses_a_folder_holding_the_users_files_and_deletes_nothing(eval_inputs, tmp_path):
+    out = tmp_path / "mine"
+    (out / "photos").mkdir(parents=True)
+    marker = json.dumps({"kind": "sianms-eval", "config": {"seed": 99}, "complete": True})
+    (out / "eval.json").write_text(marker)  # another evaluation's, so --overwrite would replace it
+    (out / "results_vanilla.json").write_text("stale")
+    (out / "notes.txt").write_text("precious")
+    (out / "photos" / "a.jpg").write_text("x")
+    result = runner.invoke(app, arguments(eval_inputs, out, "--methods", "vanilla", "--overwrite"))
+    assert result.exit_code == 2, result.output
+    assert result.output == (f"error: {out}: not replaced: 'notes.txt' is not something sianms eval writes; "
+                             "remove it yourself or choose another --out\n")
+    assert (out / "notes.txt").read_text() == "precious" and (out / "photos" / "a.jpg").read_text() == "x"
+    assert (out / "eval.json").read_text() == marker and (out / "results_vanilla.json").read_text() == "stale"

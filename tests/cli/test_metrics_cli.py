@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import errno
 import importlib.util
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -174,3 +176,50 @@ def test_out_in_a_read_only_folder_is_one_error_line(data, read_only_folder):
 def test_out_naming_a_folder_is_refused_before_any_work(data, tmp_path):
     result = invoke(data, "--out", str(tmp_path))
     assert (result.exit_code, result.output) == (2, f"error: cannot write {tmp_path}: it is a folder\n")
+
+
+def test_details_that_cannot_be_written_leave_no_out(data, tmp_path):
+    (tmp_path / "blocker").write_text("a file where --details wants a folder")
+    out, details = tmp_path / "m.json", tmp_path / "blocker" / "d.json"
+    result = invoke(data, "--out", str(out), "--details", str(details))
+    assert (result.exit_code, result.output) == (2, f"error: cannot write {tmp_path / 'blocker'}: not a folder\n")
+    assert sorted(os.listdir(tmp_path)) == ["blocker"]  # no m.json, no temporary file
+
+
+def test_a_full_disk_while_writing_details_leaves_neither_file_nor_replaces_any(data, tmp_path, monkeypatch):
+    from sianms_cli import io
+
+    out, details = tmp_path / "m.json", tmp_path / "d.json"
+
+    class FullDisk:  # the stream of d.json: every write fails as on a full disk
+        def __init__(self, stream):
+            self.stream = stream
+
+        def write(self, data):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+        def flush(self):
+            pass
+
+        def close(self):
+            self.stream.close()
+
+    opened = io.AtomicFile.__init__
+
+    def open_on_a_full_disk(self, path, **options):
+        opened(self, path, **options)
+        if self.path == details:
+            self.stream = FullDisk(self.stream)
+
+    monkeypatch.setattr(io.AtomicFile, "__init__", open_on_a_full_disk)
+    expected = (2, f"error: cannot write {details}: No space left on device\n")
+    result = invoke(data, "--out", str(out), "--details", str(details))
+    assert (result.exit_code, result.output) == expected
+    assert sorted(os.listdir(tmp_path)) == []
+    monkeypatch.undo()
+    assert invoke(data, "--out", str(out), "--details", str(details)).exit_code == 0
+    before = {path.name: path.read_bytes() for path in (out, details)}
+    monkeypatch.setattr(io.AtomicFile, "__init__", open_on_a_full_disk)
+    result = invoke(data, "--out", str(out), "--details", str(details), "--region", "all,overlap", "--overwrite")
+    assert (result.exit_code, result.output) == expected
+    assert {path.name: path.read_bytes() for path in tmp_path.iterdir()} == before  # the earlier pair, untouched

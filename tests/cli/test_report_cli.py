@@ -81,6 +81,89 @@ def test_bad_input_is_one_error_line_and_exit_2(runs, folders, tmp_path, argumen
     assert len(result.output.strip().splitlines()) == 1 and "Traceback" not in result.output
 
 
+def _tree(folder):
+    return {str(path.relative_to(folder)): path.read_bytes() if path.is_file() else None
+            for path in sorted(folder.rglob("*"))}
+
+
+@pytest.mark.parametrize("holder", ["report folder", "copied report.json"])
+@pytest.mark.parametrize(("foreign", "make"), [
+    ("notes.txt", lambda path: path.write_text("precious")),
+    ("photos", lambda path: (path.mkdir(), (path / "a.jpg").write_text("x"))),
+])
+def test_a_folder_with_entries_no_report_writes_is_left_intact(runs, tmp_path, holder, foreign, make):
+    evaluation, _ = runs
+    assert invoke(str(evaluation)).exit_code == 0
+    out = evaluation / "report"
+    if holder == "copied report.json":
+        out = tmp_path / "mine"
+        out.mkdir()
+        shutil.copy(evaluation / "report" / "report.json", out)
+    make(out / foreign)
+    before = _tree(out)
+    for flags in (["--overwrite"], []):
+        result = invoke(str(evaluation), "--out", str(out), *flags)
+        assert result.exit_code == 2, result.output
+        assert result.output.splitlines() == [f"error: {out}: not replaced: '{foreign}' is not something sianms report "
+                                              "writes; remove it yourself or choose another --out"]
+        assert _tree(out) == before
+
+
+def test_overwrite_replaces_a_report_folder(runs):
+    evaluation, _ = runs
+    assert invoke(str(evaluation)).exit_code == 0
+    (evaluation / "report" / "report.md").write_text("an older report")
+    result = invoke(str(evaluation), "--overwrite")
+    assert result.exit_code == 0, result.output
+    names = sorted(path.name for path in (evaluation / "report").iterdir())
+    assert names == ["report.html", "report.json", "report.md"]
+    assert (evaluation / "report" / "report.md").read_text() != "an older report"
+
+
+def _set(*keys, value):
+    def change(table):
+        for key in keys[:-1]:
+            table = table[key]
+        table[keys[-1]] = value
+    return change
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    (_set("duplicates", value=5), "field 'duplicates': must be an object, got int"),
+    (_set("duplicates", "vanilla", value=5), "field 'duplicates.vanilla': must be an object, got int"),
+    (_set("duplicates", "sianms", "overlap", "car", value="x"),
+     "field 'duplicates.sianms.overlap.car': must be a whole number >= 0"),
+    (_set("best_nms", value=3), "field 'best_nms': must be an object, got int"),
+    (_set("best_nms", "axis-nms", value="axis-nms@0.7"),
+     "field 'best_nms.axis-nms': must be one of the methods, got 'axis-nms@0.7'"),
+    (_set("regions", "all", "vanilla", "car", "AP", value=float("nan")),
+     "field 'regions.all.vanilla.car.AP': must be a number or null"),
+    (_set("boxes", value="x"), "field 'boxes': must be an object, got str"),
+    (_set("boxes", "oracle", value=-1), "field 'boxes.oracle': must be a whole number >= 0"),
+    (_set("classes", value=3), "field 'classes': must be a list of class names"),
+    (_set("pair_regions", value=3), "field 'pair_regions': must be a list of region names"),
+    (_set("table_class", value=["car"]), "field 'table_class': must be a class name"),
+    (_set("units", value=1), "field 'units': must be an object, got int"),
+    (_set("regions", value=[]), "field 'regions': must be an object, got list"),
+    (_set("reidentification", "sianms", "pairs_true", value="x"),
+     "field 'reidentification.sianms.pairs_true': must be a whole number >= 0"),
+])
+def test_a_table_field_of_the_wrong_type_exits_2_naming_it(runs, folders, change, message):
+    evaluation, _ = runs
+    folders.edit_table(evaluation, change)
+    result = invoke(str(evaluation))
+    assert result.exit_code == 2, result.output
+    assert result.output.splitlines() == [f"error: {evaluation / 'table.json'}: {message}"]
+    assert not (evaluation / "report").exists()
+
+
+def test_a_figure_without_value_is_still_read(runs, folders):
+    evaluation, _ = runs
+    folders.edit_table(evaluation, _set("regions", "all", "vanilla", "car", "AP", value=None))
+    result = invoke(str(evaluation))
+    assert result.exit_code == 0, result.output
+
+
 def test_force_compares_runs_of_another_config(runs, folders, tmp_path):
     evaluation, _ = runs
     other = folders.make_eval(tmp_path / "other", split_scenes=["scene-0103"])

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from metrics_reference import reference_script
-from sianms_cli.errors import SianmsError
+from sianms_cli.errors import DataFormatError, SianmsError
 from sianms_cli.evaluation.boxes import ATTRIBUTE, DETECTION_NAMES, NO_ATTRIBUTE
 from sianms_cli.evaluation.dataset import bicycle_racks, ego_poses, eval_split, ground_truth
 from sianms_cli.nuscenes.classes import CATEGORY_TO_DETECTION
@@ -51,6 +51,17 @@ def test_split_errors(reference_db):
         eval_split(reference_db, "val")
     with pytest.raises(SianmsError, match="no split 'nope'"):
         eval_split(reference_db, "nope")
+
+
+def test_a_custom_split_of_unknown_scenes_names_its_file_and_split(reference_folder, tmp_path):
+    dataroot = shutil.copytree(reference_folder / "dataroot", tmp_path / "dataroot")
+    splits = dataroot / reference_script.VERSION / "splits.json"
+    splits.write_text(json.dumps({"ghost": ["scene-9999", "scene-9998"]}))
+    db = NuScenesDB(dataroot, reference_script.VERSION)
+    with pytest.raises(DataFormatError) as error:
+        eval_split(db, "ghost")
+    assert str(error.value) == (f"{splits}: field 'ghost': none of the split's 2 scenes has a sample in "
+                                f"{db.table_root / 'scene.json'}")
 
 
 def test_ground_truth_matches_the_devkits_loader(reference_db):

@@ -9,6 +9,7 @@ from sianms_cli.errors import DataFormatError, SianmsError
 from sianms_cli.io import read_json
 from sianms_cli.nuscenes import loader
 from sianms_cli.nuscenes.loader import NuScenesDB
+from sianms_cli.nuscenes.rigs import sample_rigs
 from sianms_cli.nuscenes.sensors import write_jpeg, write_pcd_bin
 from sianms_cli.nuscenes.tables import TABLE_NAMES
 
@@ -270,6 +271,8 @@ _ROTATION_PROBLEM = ("expected a quaternion that can be normalised "
     ("ego_pose", 2, "rotation", [0.0, 0.0, 0.0, 0.0], _ROTATION_PROBLEM + "[0.0, 0.0, 0.0, 0.0]"),
     ("ego_pose", 1, "rotation", [1e-200, 0, 0, 0], _ROTATION_PROBLEM + "[1e-200, 0, 0, 0]"),
     ("calibrated_sensor", 1, "rotation", [0, 0, 0, 0], _ROTATION_PROBLEM + "[0, 0, 0, 0]"),
+    ("sample_data", 1, "width", -5, "expected a width of 0 or more pixels (0: not an image), got -5"),
+    ("sample_data", 2, "height", -1, "expected a height of 0 or more pixels (0: not an image), got -1"),
 ])
 def test_values_no_record_can_hold(tiny_dataroot, rewrite_table, tiny_records, table, row, field,
                                    value, problem):
@@ -290,6 +293,18 @@ def test_values_within_the_rules_load(tiny_dataroot, rewrite_table):
     rewrite_table("sample_annotation", edge_values)
     annotations = NuScenesDB(tiny_dataroot, VERSION).table("sample_annotation")
     assert annotations.column("rotation")[:2].tolist() == [[2.0, 0, 0, 1e-300], [0, 0, 0, -1e150]]
+
+
+def test_a_camera_key_frame_without_an_image_size_is_named(tiny_dataroot, rewrite_table, tiny_records):
+    """Width 0 is a LiDAR or radar record's; on a camera's key frame the rig has no image."""
+    camera = next(i for i, record in enumerate(tiny_records["sample_data"])
+                  if record["is_key_frame"] and "/CAM_" in record["filename"])
+    path = rewrite_table("sample_data", lambda records: records[camera].__setitem__("width", 0))
+    db = NuScenesDB(tiny_dataroot, VERSION)
+    with pytest.raises(DataFormatError) as error:
+        sample_rigs(db, db.table("sample").tokens)
+    assert str(error.value) == (f"{path}: record {tiny_records['sample_data'][camera]['token']}: field 'width': "
+                                "a camera key frame needs a positive image width, got 0")
 
 
 def test_empty_token_names_the_position(tiny_dataroot, rewrite_table):

@@ -11,11 +11,11 @@ from sianms_cli.errors import DataFormatError, OutputExistsError
 from sianms_cli.evaluation.algo import calc_ap
 from sianms_cli.evaluation.evaluate import read_details
 from sianms_cli.evaluation.results import read_results
-from sianms_cli.pipelines.job import EvalConfig, run
+from sianms_cli.pipelines.job import EvalConfig, claim_output, run
 from sianms_cli.pipelines.methods import METHODS
 from sianms_cli.progress import SILENT
 from sianms_cli.reporting.eval_table import format_cell
-from sianms_cli.reporting.report import ReportConfig, run as run_report
+from sianms_cli.reporting.report import SCHEMA as REPORT_SCHEMA, ReportConfig, run as run_report
 
 
 def config_of(inputs, **fields):
@@ -137,6 +137,65 @@ def test_overwrite_with_other_methods_keeps_the_scenes(eval_inputs, evaluated, t
     assert {path.name: path.stat().st_mtime_ns for path in (copy / "scenes").glob("*.parquet")} == scenes
     assert not (copy / "results_axis-nms.json").exists()
     assert (copy / "results_sianms.json").read_bytes() == (out / "results_sianms.json").read_bytes()
+
+
+STALE_CONFIG = {"seed": 0, "split_scenes": ["scene-0001"]}
+NEW_CONFIG = {"seed": 1, "split_scenes": ["scene-0001"]}  # another seed: the scenes are redone too
+
+
+def stale_evaluation(out):
+    """A hand-made evaluation folder of :data:`STALE_CONFIG` holding what `sianms eval` and
+    `sianms report EVAL` write there (as a real one, tests/pipelines' ``evaluated``, shows)."""
+    (out / "scenes").mkdir(parents=True)
+    (out / "eval.json").write_text(json.dumps({"kind": "sianms-eval", "config": STALE_CONFIG, "complete": True}))
+    (out / ".eval.lock").write_text("1\n")
+    for name in ("results_vanilla.json", "metrics_sianms.json", "metrics_details_gated-sianms.json",
+                 "results_axis-nms@0.05.json", "metrics_details_rotated-nms@0.1.json", "table.json", "table.md",
+                 "pr_curves.png", ".results_oracle.json.4242.0123abcd.partial",  # a killed run's temporary file
+                 "scenes/scene-0001.parquet", "scenes/scene-0001.lock", "pictures/0123abcd.png"):
+        (out / name).parent.mkdir(exist_ok=True)
+        (out / name).write_text("stale")
+    (out / "report").mkdir()
+    (out / "report" / "report.json").write_text(json.dumps({"schema": REPORT_SCHEMA}))
+    (out / "report" / "report.html").write_text("<html></html>")
+    return out
+
+
+def test_overwrite_replaces_a_stale_evaluation_and_its_report(tmp_path):
+    out = stale_evaluation(tmp_path / "eval")
+    assert claim_output(out, NEW_CONFIG, overwrite=True) is False
+    assert sorted(path.name for path in out.iterdir()) == [".eval.lock", "eval.json", "scenes"]
+    assert list((out / "scenes").iterdir()) == []
+    marker = json.loads((out / "eval.json").read_text())
+    assert marker["config"] == NEW_CONFIG and not marker["complete"]
+
+
+@pytest.mark.parametrize("foreign", ["notes.txt", "photos/a.jpg", "results_final.json", "metrics_vanilla.json.bak",
+                                     "report/", "report/notes.txt", "pictures/mine.jpg", "scenes/notes.txt"])
+def test_overwrite_refuses_a_folder_holding_what_eval_does_not_write(tmp_path, foreign):
+    out = stale_evaluation(tmp_path / "eval")
+    if foreign == "report/":  # a folder named report that is not a sianms report
+        (out / "report" / "report.json").write_text(json.dumps({"schema": "my-own"}))
+    else:
+        (out / foreign).parent.mkdir(exist_ok=True)
+        (out / foreign).write_text("precious")
+    before = {path: path.read_bytes() for path in sorted(out.rglob("*")) if path.is_file()}
+    with pytest.raises(OutputExistsError) as refused:
+        claim_output(out, NEW_CONFIG, overwrite=True)
+    shown = foreign.split("/")[0] if foreign.startswith(("photos", "report")) else foreign
+    assert str(refused.value) == (f"{out}: not replaced: '{shown}' is not something sianms eval writes; "
+                                  "remove it yourself or choose another --out")
+    assert {path: path.read_bytes() for path in sorted(out.rglob("*")) if path.is_file()} == before
+
+
+def test_overwrite_refuses_a_link_even_to_what_eval_writes(tmp_path):
+    out = stale_evaluation(tmp_path / "eval")
+    mine = tmp_path / "mine"
+    (out / "report").rename(mine)  # a sianms report, but not in the evaluation's folder
+    (out / "report").symlink_to(mine)
+    with pytest.raises(OutputExistsError, match="'report' is not something sianms eval writes"):
+        claim_output(out, NEW_CONFIG, overwrite=True)
+    assert (mine / "report.json").is_file() and (out / "results_vanilla.json").is_file()
 
 
 def test_scenes_run_on_one_torch_thread_in_this_process_too(eval_inputs, tmp_path, monkeypatch):

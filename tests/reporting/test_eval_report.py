@@ -235,14 +235,19 @@ def test_allowances_start_from_the_defaults():
         ReportConfig(eval=" ")
 
 
-def test_an_existing_folder_is_replaced_only_when_it_is_a_report_and_asked(evaluation, tmp_path):
+def test_an_existing_folder_is_replaced_only_when_it_is_a_report_and_asked(tmp_path):
+    evaluation = make_eval(tmp_path / "eval", details=True)  # with the curves: every file a report writes
     first = run(ReportConfig(eval=str(evaluation)))
+    names = sorted(path.name for path in first.out.iterdir())
+    assert names == ["pr_curves.png", "report.html", "report.json", "report.md", "tp_curves.png"]
     before = (first.out / "report.json").read_bytes()
     with pytest.raises(OutputExistsError, match="pass --overwrite"):
         run(ReportConfig(eval=str(evaluation)))
-    (first.out / "stale.txt").write_text("from an older report")
+    (first.out / "report.md").write_text("an older report")
     again = run(ReportConfig(eval=str(evaluation)), overwrite=True)
-    assert (again.out / "report.json").read_bytes() == before and not (again.out / "stale.txt").exists()
+    assert sorted(path.name for path in again.out.iterdir()) == names
+    assert (again.out / "report.json").read_bytes() == before
+    assert (again.out / "report.md").read_text() != "an older report"
     foreign = tmp_path / "foreign"
     foreign.mkdir()
     (foreign / "keep.txt").write_text("mine")

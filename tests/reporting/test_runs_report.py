@@ -132,6 +132,12 @@ def test_an_existing_folder_is_replaced_only_when_it_is_a_report_and_asked(runs,
     with pytest.raises(OutputExistsError, match="--overwrite"):
         run(config, out)
     assert run(config, out, overwrite=True).out == out
+    (out / "notes.txt").write_text("mine")
+    with pytest.raises(OutputExistsError) as caught:
+        run(config, out, overwrite=True)
+    assert str(caught.value) == (f"{out}: not replaced: 'notes.txt' is not something sianms report writes; remove it "
+                                 "yourself or choose another --out")
+    assert (out / "notes.txt").read_text() == "mine"
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "notes.txt").write_text("mine")
     with pytest.raises(OutputExistsError, match="not a sianms report"):

@@ -194,6 +194,23 @@ def test_overwrite_never_replaces_a_folder_with_anything_else_in_it(tmp_path, ma
     assert [p.name for p in tmp_path.iterdir()] == ["out"]
 
 
+@pytest.mark.parametrize("placed, named", [
+    ("samples/my_photos/a.jpg", "samples/my_photos"),
+    ("samples/CAM_FRONT/notes.txt", "samples/CAM_FRONT/notes.txt"),
+    ("samples/LIDAR_TOP/a.jpg", "samples/LIDAR_TOP/a.jpg"),
+    ("maps/expansion/boston-seaport.json", "maps/expansion"),  # where the devkit's map expansion goes
+    ("v1.0-mini/notes.txt", "v1.0-mini/notes.txt"),
+])
+def test_overwrite_looks_inside_synths_own_folders(tmp_path, placed, named):
+    out = _earlier_output(tmp_path / "out")
+    for own in ("samples/CAM_FRONT/a.jpg", "samples/LIDAR_TOP/b.pcd.bin", "maps/c.png", "v1.0-mini/scene.json", placed):
+        (out / own).parent.mkdir(parents=True, exist_ok=True)
+        (out / own).write_text("x")
+    with pytest.raises(OutputExistsError, match=f"{out}: not replaced: '{named}' is not something sianms synth writes"):
+        run(SynthConfig(scenes=1, sensors="none", scene_seconds=0.5), out, overwrite=True)
+    assert (out / placed).read_text() == "x"
+
+
 def test_a_linked_entry_is_never_synth_output(tmp_path):
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()

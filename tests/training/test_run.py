@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
+from sianms_cli.io import OutputError
 from sianms_cli.training.run import (
     CHECKPOINT, CONFIG, CURVES, METRICS, Checkpoint, RunFolder, choose_device, epoch_generator, load_checkpoint,
     load_state, metrics_csv, save_checkpoint, step_decay,
@@ -42,7 +43,10 @@ def test_a_pickled_object_is_refused(tmp_path):
     torch.save({"format": "sianms-checkpoint-1", "model": {}, "payload": ValueError("x")}, path)
     with pytest.raises(DataFormatError, match="evil.pt: not a sianms checkpoint .weights-only load refused it"):
         load_checkpoint(path)
-    for content in (pickle.dumps({"a": 1}) + b"junk", b"junk", b"", b"PK\x03\x04 a broken zip"):
+    good = save_checkpoint(tmp_path / CHECKPOINT, small_checkpoint()[1]).read_bytes()
+    # the last two: torch's zip reader raises OSError(EINVAL), its unpickler IndexError
+    for content in (pickle.dumps({"a": 1}) + b"junk", b"junk", b"", b"PK\x03\x04 a broken zip",
+                    good[:len(good) // 2], b"\x80\x02q\x00."):
         path.write_bytes(content)
         with pytest.raises(DataFormatError, match="evil.pt: not a sianms checkpoint"):
             load_checkpoint(path)
@@ -107,6 +111,21 @@ def test_a_second_writer_is_refused(tmp_path):
     with RunFolder.open(tmp_path / "run", kind="siamese", config={}):
         with pytest.raises(FolderBusyError):
             RunFolder.open(tmp_path / "run", kind="siamese", config={}, resume=True).__enter__()
+
+
+def test_a_run_that_cannot_take_its_lock_leaves_no_folder(tmp_path, monkeypatch):
+    """A full disk when the lock file gets its pid: one error naming the lock file, and the run
+    folder this run made is gone again."""
+    import errno
+    import os
+
+    def full(*_):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(os, "pwrite", full)
+    with pytest.raises(OutputError, match=r"cannot write .*run/\.sianms\.lock: No space left on device"):
+        RunFolder.open(tmp_path / "run", kind="siamese", config={}).__enter__()
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_curves_and_metrics(tmp_path):
