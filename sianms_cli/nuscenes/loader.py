@@ -196,6 +196,7 @@ _VALUE_RULES: dict[tuple[str, str], _ValueRule] = {
     ("sample_annotation", "rotation"): _ROTATION_RULE,
     ("sample_annotation", "num_lidar_pts"): _COUNT_RULE,
     ("sample_annotation", "num_radar_pts"): _COUNT_RULE,
+    ("instance", "nbr_annotations"): _COUNT_RULE,
     ("sample_data", "width"): _ValueRule(_non_negative, "a width of 0 or more pixels (0: not an image)"),
     ("sample_data", "height"): _ValueRule(_non_negative, "a height of 0 or more pixels (0: not an image)"),
 }

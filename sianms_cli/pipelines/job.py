@@ -198,10 +198,7 @@ def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> bool:
     evaluation, complete.
     """
     marker = out / MARKER
-    entries = [entry for entry in out.iterdir() if entry.name != LOCK]
-    if entries and not marker.is_file():
-        raise OutputExistsError(f"{out} is not empty and is not a sianms evaluation (no {MARKER}); "
-                                "choose another --out")
+    entries = refuse_foreign_folder(out)
     if marker.is_file():
         stored = read_json(marker)
         if not isinstance(stored, dict) or stored.get("kind") != KIND:
@@ -228,6 +225,17 @@ def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> bool:
     make_folder(out / SCENES)
     write_marker(out, resolved, {}, complete=False)
     return False
+
+
+def refuse_foreign_folder(out: Path) -> list[Path]:
+    """The entries of ``out`` but the lock; refuses a non-empty folder without an ``eval.json``.
+
+    Checked before the folder lock is taken too, so a refused folder does not get a lock file."""
+    entries = [entry for entry in out.iterdir() if entry.name != LOCK] if out.is_dir() else []
+    if entries and not (out / MARKER).is_file():
+        raise OutputExistsError(f"{out} is not empty and is not a sianms evaluation (no {MARKER}); "
+                                "choose another --out")
+    return entries
 
 
 def _is_eval_entry(entry: Path, folder: str = "") -> bool:
@@ -332,6 +340,7 @@ def run(config: EvalConfig, out: str | Path, *, overwrite: bool = False, progres
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise OutputExistsError(f"{out} exists and is not a folder; choose another --out")
+    refuse_foreign_folder(out)
     db = NuScenesDB(config.dataroot, config.version)
     scenes = split_scenes(db, config.split)
     names = [name for _, name in scenes]

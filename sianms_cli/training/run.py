@@ -369,6 +369,8 @@ class RunFolder:
         - ``write`` false (the non-zero ranks of a distributed run): check and read only.
         """
         path = Path(out)
+        if resume and overwrite:
+            raise SianmsError("--resume continues the run in the folder and --overwrite starts it afresh: pass one")
         if not write:  # rank 0 checks and may be writing config.json already: only read the checkpoint
             resumed = load_checkpoint(path / CHECKPOINT, kind) if resume and (path / CHECKPOINT).exists() else None
             return cls(path, kind, config, resumed, write)

@@ -271,6 +271,7 @@ _ROTATION_PROBLEM = ("expected a quaternion that can be normalised "
     ("ego_pose", 2, "rotation", [0.0, 0.0, 0.0, 0.0], _ROTATION_PROBLEM + "[0.0, 0.0, 0.0, 0.0]"),
     ("ego_pose", 1, "rotation", [1e-200, 0, 0, 0], _ROTATION_PROBLEM + "[1e-200, 0, 0, 0]"),
     ("calibrated_sensor", 1, "rotation", [0, 0, 0, 0], _ROTATION_PROBLEM + "[0, 0, 0, 0]"),
+    ("instance", 0, "nbr_annotations", -3, "expected a count of 0 or more, got -3"),
     ("sample_data", 1, "width", -5, "expected a width of 0 or more pixels (0: not an image), got -5"),
     ("sample_data", 2, "height", -1, "expected a height of 0 or more pixels (0: not an image), got -1"),
 ])

@@ -90,6 +90,8 @@ def test_run_folder_refuses_resumes_and_overwrites(tmp_path):
     assert resumed.resumed.epoch == 2
     with pytest.raises(SianmsError, match="config differs in dim"):
         RunFolder.open(out, kind="siamese", config={"dim": 3, "epochs": 3}, resume=True)
+    with pytest.raises(SianmsError, match="--resume continues the run in the folder and --overwrite starts it afresh"):
+        RunFolder.open(out, kind="siamese", config=config, resume=True, overwrite=True)
     RunFolder.open(out, kind="siamese", config=config, overwrite=True)
     assert not (out / CHECKPOINT).exists()
     assert RunFolder.open(out, kind="siamese", config=config, resume=True).resumed is None  # nothing to resume
