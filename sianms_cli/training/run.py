@@ -61,7 +61,7 @@ import numpy as np
 import torch
 
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
-from sianms_cli.io import exclusive_lock, make_folder, read_json, write_bytes, write_json
+from sianms_cli.io import FolderBusyError, exclusive_lock, make_folder, read_json, write_bytes, write_json
 
 CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.json"
@@ -408,8 +408,12 @@ class RunFolder:
             lock = exclusive_lock(self.path / FOLDER_LOCK_NAME, what=str(self.path))
             try:
                 lock.__enter__()
-            except Exception:  # a full disk, or a folder another run holds: leave no trace of this one
-                self._remove_created()
+            except FolderBusyError:  # the other run's files are not this one's to clean up
+                raise
+            except Exception:  # a full disk: the lock file, and the folder, are all this run made
+                if FOLDER_LOCK_NAME not in self._found:
+                    (self.path / FOLDER_LOCK_NAME).unlink(missing_ok=True)
+                self._remove_folder_if_made()
                 raise
             self._lock = lock
             try:
@@ -441,6 +445,9 @@ class RunFolder:
                     shutil.rmtree(entry)
                 else:
                     entry.unlink()
+        self._remove_folder_if_made()
+
+    def _remove_folder_if_made(self) -> None:
         if self._made_folder:
             try:
                 self.path.rmdir()

@@ -130,6 +130,27 @@ def test_a_run_that_cannot_take_its_lock_leaves_no_folder(tmp_path, monkeypatch)
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_busy_folder_is_left_as_the_other_run_has_it(tmp_path, monkeypatch):
+    """What the run holding the lock wrote after this run looked at the folder is not this run's to remove."""
+    from contextlib import contextmanager
+
+    from sianms_cli.io import FolderBusyError
+    from sianms_cli.training import run as run_module
+
+    out = tmp_path / "run"
+
+    @contextmanager
+    def held_by_another(lock_path, *, what, blocking=False):
+        (out / CHECKPOINT).write_text("the other run's")
+        raise FolderBusyError(f"{what} is in use by another sianms process (pid 1)")
+        yield
+
+    monkeypatch.setattr(run_module, "exclusive_lock", held_by_another)
+    with pytest.raises(FolderBusyError):
+        RunFolder.open(out, kind="siamese", config={}).__enter__()
+    assert (out / CHECKPOINT).read_text() == "the other run's"
+
+
 def test_curves_and_metrics(tmp_path):
     history = [{"epoch": 1, "loss": 1.5, "auc": float("nan")}, {"epoch": 2, "loss": 0.25, "auc": 0.75, "new": 3}]
     assert metrics_csv(history) == "epoch,loss,auc,new\n1,1.5,,\n2,0.25,0.75,3\n"
