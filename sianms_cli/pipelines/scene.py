@@ -34,12 +34,14 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
+from weakref import WeakKeyDictionary
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
 from sianms_cli.data.cache import decode_roi_features, read_shard_table, roi_feature_shape
+from sianms_cli.geometry.rig import CameraRig
 from sianms_cli.geometry.transforms import sensor_to_global
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.rigs import sample_rigs
@@ -128,7 +130,11 @@ class SceneEvaluator:
         self.predictor = predictor
         self.encoder = encoder
         self.settings = settings
-        self._spans: dict[tuple[int, str, str], tuple[float, float] | None] = {}
+        # Per rig object, {(a, b): span}. Keyed by the rig itself, not by its index in a scene's
+        # rig list: the indices restart at 0 in every scene, and a cache keyed by them handed a
+        # later scene the spans of an earlier scene's calibration.
+        self._spans: WeakKeyDictionary[CameraRig, dict[tuple[int, int], tuple[float, float] | None]] = (
+            WeakKeyDictionary())
         self.seconds: Counter[str] = Counter()
 
     @contextmanager
@@ -158,8 +164,7 @@ class SceneEvaluator:
                 inputs = self._inputs(detections, frustums, rows)
             if len(inputs.detection_id) == 0:
                 continue
-            tables.append(self._sample(records, position, rigs[rig_of[position]], rig_of[position], inputs,
-                                       detections_path))
+            tables.append(self._sample(records, position, rigs[rig_of[position]], inputs, detections_path))
         table = pa.concat_tables(tables) if tables else BOXES_SCHEMA.empty_table()
         timings = {"samples": len(records.sample_tokens), **{stage: self.seconds[stage] for stage in STAGES}}
         return table.replace_schema_metadata({"sianms.timings": json.dumps(timings)})
@@ -188,7 +193,7 @@ class SceneEvaluator:
 
     # ----------------------------------------------------------------------- one sample
 
-    def _sample(self, records: SceneRecords, position: int, rig, rig_index: int, inputs: SampleInputs,
+    def _sample(self, records: SceneRecords, position: int, rig: CameraRig, inputs: SampleInputs,
                 detections_path: Path) -> pa.Table:
         settings = self.settings
         cameras = self._camera_frames(records, position)
@@ -201,7 +206,7 @@ class SceneEvaluator:
         rows = [_rows(records, position, SINGLE, inputs, np.arange(len(inputs.detection_id)), None, boxes,
                       counts=np.diff(inputs.offsets))]
         with self._timed("candidates"):
-            candidates = self._candidates(rig, rig_index, inputs)
+            candidates = self._candidates(rig, inputs)
         matchers = [(SIANMS, self._network_matches(candidates, inputs, detections_path,
                                                    records.sample_tokens[position])),
                     (ORACLE, self._oracle_matches(candidates, inputs))]
@@ -228,22 +233,22 @@ class SceneEvaluator:
                                keyframes.intrinsic[position, c])
         return frames
 
-    def _span(self, rig, rig_index: int, a: int, b: int) -> tuple[float, float] | None:
+    def span(self, rig: CameraRig, a: int, b: int) -> tuple[float, float] | None:
         """Camera a's image columns camera b also sees (cached per rig)."""
-        key = (rig_index, rig.channels[a], rig.channels[b])
-        if key not in self._spans:
+        spans = self._spans.setdefault(rig, {})
+        if (a, b) not in spans:
             rotation = rig.ego_to_cam[b, :3, :3] @ rig.cam_to_ego[a, :3, :3]
-            self._spans[key] = overlap_columns(rig.intrinsics[a], tuple(rig.image_sizes[a]), rotation,
-                                               rig.intrinsics[b], tuple(rig.image_sizes[b]))
-        return self._spans[key]
+            spans[a, b] = overlap_columns(rig.intrinsics[a], tuple(rig.image_sizes[a]), rotation,
+                                          rig.intrinsics[b], tuple(rig.image_sizes[b]))
+        return spans[a, b]
 
-    def _candidates(self, rig, rig_index: int, inputs: SampleInputs) -> list[tuple[np.ndarray, np.ndarray]]:
+    def _candidates(self, rig: CameraRig, inputs: SampleInputs) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per contiguous pair (clockwise), the candidate rows of each camera (module docstring, step 3)."""
         matched = np.isin(inputs.classes, self.settings.matched_classes)
         pairs = []
         for a, b in rig.contiguous_pairs:
-            in_a = matched & (inputs.camera == rig.channels[a]) & in_columns(inputs.boxes2d, self._span(rig, rig_index, a, b))
-            in_b = matched & (inputs.camera == rig.channels[b]) & in_columns(inputs.boxes2d, self._span(rig, rig_index, b, a))
+            in_a = matched & (inputs.camera == rig.channels[a]) & in_columns(inputs.boxes2d, self.span(rig, a, b))
+            in_b = matched & (inputs.camera == rig.channels[b]) & in_columns(inputs.boxes2d, self.span(rig, b, a))
             pairs.append((np.flatnonzero(in_a), np.flatnonzero(in_b)))
         return pairs
 

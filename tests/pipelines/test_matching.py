@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from sianms_cli.geometry.frustum import rotate_to_frustum
+from sianms_cli.geometry.rig import CameraRig
 from sianms_cli.pipelines.matching import (
     allowed_pairs,
     assign,
@@ -15,6 +16,7 @@ from sianms_cli.pipelines.matching import (
     pair_distances,
     pair_quality,
 )
+from sianms_cli.pipelines.scene import SceneEvaluator
 
 K = np.array([[100.0, 0.0, 100.0], [0.0, 100.0, 50.0], [0.0, 0.0, 1.0]])  # 200 x 100 image, 90° HFOV
 
@@ -32,6 +34,22 @@ def test_overlap_columns_of_two_cameras_sixty_degrees_apart():
     boxes = np.array([[0, 0, 120, 10], [120, 0, 130, 10], [150, 0, 199, 10]], dtype=float)
     assert in_columns(boxes, span).tolist() == [False, True, True]
     assert in_columns(boxes, None).tolist() == [False, False, False]
+
+
+def test_the_evaluators_bands_follow_each_rig_it_is_given():
+    """Every scene builds its own rigs, numbered from 0: the cached bands are each rig's own (they
+    were once keyed by that number, and a later scene got an earlier scene's calibration)."""
+    def rig(yaw_b):
+        cam_to_ego = np.array([np.eye(4), np.eye(4)])
+        cam_to_ego[:, :3, :3] = [rotate_to_frustum(np.eye(3), 0.0), rotate_to_frustum(np.eye(3), math.radians(yaw_b))]
+        return CameraRig.from_cameras(["CAM_A", "CAM_B"], np.stack([K, K]), cam_to_ego, [[200, 100], [200, 100]])
+
+    evaluator = SceneEvaluator(None, None, None, None)
+    rigs = [rig(yaw_b) for yaw_b in (60.0, 70.0, 60.0)]
+    for each in rigs:
+        a, b = (0, 1) if each.channels[0] == "CAM_A" else (1, 0)
+        rotation = each.ego_to_cam[b, :3, :3] @ each.cam_to_ego[a, :3, :3]
+        assert evaluator.span(each, a, b) == overlap_columns(K, (200, 100), rotation, K, (200, 100))
 
 
 def test_pair_distances_are_l2():
