@@ -31,6 +31,17 @@ from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
 PARTIAL_SUFFIX = ".partial"
 JSON_MAX_DEPTH = 1024  # orjson refuses deeper documents; the json module would overflow the stack
 T = TypeVar("T")
+_OPEN_TEMPORARIES: set[Path] = set()  # of the AtomicFiles this process is writing
+
+
+def discard_open_temporaries() -> None:
+    """Delete the temporary files of every AtomicFile this process is writing: for a worker that
+    is stopped mid-task and ends at once, without unwinding (``processes``)."""
+    for temporary in list(_OPEN_TEMPORARIES):
+        try:
+            temporary.unlink()
+        except OSError:
+            pass
 
 
 class OutputError(SianmsError):
@@ -100,8 +111,13 @@ class AtomicFile:
         make_folder(self.path.parent)
         refuse_non_file(self.path)
         self.temporary = partial_name(self.path)
+        _OPEN_TEMPORARIES.add(self.temporary)
         with os_errors_as_output_errors(self.path):
-            descriptor = os.open(self.temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+            try:
+                descriptor = os.open(self.temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+            except BaseException:
+                _OPEN_TEMPORARIES.discard(self.temporary)
+                raise
         self.stream: IO = (open(descriptor, "w", encoding="utf-8", newline="\n") if text
                            else open(descriptor, "wb"))
 
@@ -114,6 +130,7 @@ class AtomicFile:
         except BaseException:
             self.discard()
             raise
+        _OPEN_TEMPORARIES.discard(self.temporary)
         return self.path
 
     def discard(self) -> None:
@@ -123,6 +140,7 @@ class AtomicFile:
         except OSError:
             pass
         self.temporary.unlink(missing_ok=True)
+        _OPEN_TEMPORARIES.discard(self.temporary)
 
 
 @contextmanager

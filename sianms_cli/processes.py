@@ -25,6 +25,7 @@ from contextlib import contextmanager
 from typing import Any, Callable, Iterable, Iterator
 
 from sianms_cli.errors import SianmsError
+from sianms_cli.io import discard_open_temporaries
 
 
 TASK_TORCH_THREADS = 1
@@ -69,12 +70,21 @@ def _exit_when_orphaned(parent: int) -> None:
     would otherwise compute, and write, on their own."""
     while os.getppid() == parent:
         time.sleep(ORPHAN_CHECK_SECONDS)
+    discard_open_temporaries()
     os._exit(1)
+
+
+def _discard_and_exit(signum: int, frame: Any) -> None:
+    """A worker stopped mid-task (the pool terminates it on an interrupt): delete the files it was
+    writing and end now. Not by raising: the pool's loop in the worker would catch it and start
+    its next task."""
+    discard_open_temporaries()
+    os._exit(128 + signum)
 
 
 def _start_worker(parent: int, initializer: Callable[..., None] | None, initargs: tuple) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, _discard_and_exit)
     threading.Thread(target=_exit_when_orphaned, args=(parent,), daemon=True).start()
     if initializer is not None:
         initializer(*initargs)

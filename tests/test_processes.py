@@ -7,6 +7,7 @@ import time
 
 import pytest
 
+from sianms_cli.io import atomic_file
 from sianms_cli.processes import ORPHAN_CHECK_SECONDS, WorkerDied, worker_pool
 
 
@@ -32,6 +33,25 @@ def test_an_interrupt_terminates_running_workers(process_tree):
             workers = process_tree.workers(os.getpid())
             raise KeyboardInterrupt
     assert workers and not [pid for pid in workers if process_tree.alive(pid)]
+
+
+def write_forever(path):
+    """A task that is stopped while it writes ``path``."""
+    with atomic_file(path) as stream:
+        stream.write(b"half")
+        time.sleep(60)
+
+
+def test_a_worker_stopped_mid_write_leaves_no_temporary_file(tmp_path):
+    with pytest.raises(KeyboardInterrupt):
+        with worker_pool(2) as pool:
+            pool.imap_unordered(write_forever, [tmp_path / "a.bin", tmp_path / "b.bin"])
+            deadline = time.monotonic() + 30
+            while len(list(tmp_path.iterdir())) < 2 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert len(list(tmp_path.iterdir())) == 2  # both temporaries are there
+            raise KeyboardInterrupt
+    assert list(tmp_path.iterdir()) == []
 
 
 PARENT = """

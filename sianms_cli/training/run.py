@@ -351,6 +351,7 @@ class RunFolder:
         self._made_folder = False  # this run created the folder
         self._found: set[str] = set()  # the folder's entries before this run wrote any
         self._saved = False  # this run wrote a checkpoint
+        self._history: list[dict[str, Any]] = resumed.history if resumed is not None else []  # the latest checkpoint's
 
     @property
     def checkpoint_path(self) -> Path:
@@ -433,8 +434,25 @@ class RunFolder:
         try:
             if failed_early:
                 self._remove_created()
+            elif exc_type is None:
+                self._complete_epoch_files()
         finally:
             lock.__exit__(exc_type, *exc)
+
+    def _complete_epoch_files(self) -> None:
+        """metrics.csv and curves.png of the latest checkpoint, where an interrupt between writing
+        it and them left them behind it (a resume with no epoch left to train runs only this)."""
+        if not self._history:
+            return
+        table = metrics_csv(self._history).encode()
+        metrics = self.path / METRICS
+        if not metrics.is_file() or metrics.read_bytes() != table:
+            write_bytes(metrics, table)
+        if not (self.path / CURVES).is_file():
+            self._plot()
+
+    def _plot(self) -> None:
+        plot_curves(self._history, self.path / CURVES, title=f"{self.kind}: {self.path.name}", panels=self.panels)
 
     def _remove_created(self) -> None:
         """Delete the folder's entries that were not there when this run started (its lock file
@@ -463,11 +481,10 @@ class RunFolder:
         if not self.write:
             return
         save_checkpoint(self.checkpoint_path, checkpoint)
-        self._saved = True
+        self._saved, self._history = True, checkpoint.history
         write_bytes(self.path / METRICS, metrics_csv(checkpoint.history).encode())
         if curves and checkpoint.history:
-            plot_curves(checkpoint.history, self.path / CURVES, title=f"{self.kind}: {self.path.name}",
-                        panels=self.panels)
+            self._plot()
 
 
 def _stored_config(path: Path) -> dict[str, Any]:

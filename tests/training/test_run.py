@@ -83,7 +83,8 @@ def test_run_folder_refuses_resumes_and_overwrites(tmp_path):
         _, checkpoint = small_checkpoint()
         checkpoint.config = config
         run.save(checkpoint, curves=False)
-    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == [CHECKPOINT, CONFIG, METRICS]
+    # curves.png too: a run that ends cleanly leaves its latest checkpoint's tables complete
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == [CHECKPOINT, CONFIG, CURVES, METRICS]
     with pytest.raises(OutputExistsError, match="--resume .* or --overwrite"):
         RunFolder.open(out, kind="siamese", config=config)
     resumed = RunFolder.open(out, kind="siamese", config={"dim": 2, "epochs": 5}, resume=True, may_differ=("epochs",))
@@ -149,6 +150,21 @@ def test_a_busy_folder_is_left_as_the_other_run_has_it(tmp_path, monkeypatch):
     with pytest.raises(FolderBusyError):
         RunFolder.open(out, kind="siamese", config={}).__enter__()
     assert (out / CHECKPOINT).read_text() == "the other run's"
+
+
+def test_a_resume_with_nothing_left_to_train_completes_the_tables_an_interrupt_cut_short(tmp_path):
+    out = tmp_path / "run"
+    _, checkpoint = small_checkpoint()
+    with pytest.raises(KeyboardInterrupt):
+        with RunFolder.open(out, kind="siamese", config=checkpoint.config) as run:
+            run.save(checkpoint, curves=False)
+            (out / METRICS).write_text("epoch\n")  # as if the interrupt came while they were written
+            raise KeyboardInterrupt
+    assert not (out / CURVES).exists()
+    with RunFolder.open(out, kind="siamese", config=checkpoint.config, resume=True):
+        pass
+    assert (out / CURVES).read_bytes().startswith(b"\x89PNG")
+    assert (out / METRICS).read_text() == metrics_csv(checkpoint.history)
 
 
 def test_curves_and_metrics(tmp_path):
