@@ -1,3 +1,3 @@
-from sianms_cli.cli import main
+from sianms_cli.entry import main
 
 main()

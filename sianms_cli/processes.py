@@ -52,13 +52,25 @@ class Terminated(KeyboardInterrupt):
     """The process received SIGTERM."""
 
 
-def _raise_terminated(signum: int, frame: Any) -> None:
-    raise Terminated()
+_SIGNALS_RECEIVED: list[int] = []
 
 
-def terminate_on_sigterm() -> None:
-    """From now on SIGTERM raises :class:`Terminated` in the main thread."""
-    signal.signal(signal.SIGTERM, _raise_terminated)
+def _raise_interrupt(signum: int, frame: Any) -> None:
+    _SIGNALS_RECEIVED.append(signum)
+    raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+
+def interrupt_on_signals() -> None:
+    """From now on SIGINT raises KeyboardInterrupt and SIGTERM :class:`Terminated` in the main
+    thread, and :func:`signal_received` remembers the first: a library that swallows the
+    exception (a C callback, an ``except`` around an import) cannot make a run look finished."""
+    signal.signal(signal.SIGINT, _raise_interrupt)
+    signal.signal(signal.SIGTERM, _raise_interrupt)
+
+
+def signal_received() -> int | None:
+    """The first SIGINT or SIGTERM since :func:`interrupt_on_signals`, or None."""
+    return _SIGNALS_RECEIVED[0] if _SIGNALS_RECEIVED else None
 
 
 ORPHAN_CHECK_SECONDS = 1.0

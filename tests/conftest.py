@@ -156,10 +156,11 @@ def eval_inputs(synthetic_dataroot, tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def eval_folders():
-    """The hand-written `sianms eval` folders of tests/reporting/test_eval_report.py (``make_eval``,
-    ``edit_table``, ``parse_html``), for the report's CLI, start-up and browser tests."""
-    path = Path(__file__).resolve().parent / "reporting" / "test_eval_report.py"
-    spec = importlib.util.spec_from_file_location("eval_report_folders", path)
+    """The hand-written `sianms eval` folders of tests/reporting/report_helpers.py (``make_eval``,
+    ``edit_table``, ``parse_html``), for the report's CLI, start-up and browser tests, loaded by
+    path: tests/reporting is on sys.path only when pytest collects a test there."""
+    path = Path(__file__).resolve().parent / "reporting" / "report_helpers.py"
+    spec = importlib.util.spec_from_file_location("report_helpers", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

@@ -1,6 +1,12 @@
 """User errors survive the trip from a worker process to the parent whole."""
 
+import os
 import pickle
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import pytest
 
@@ -72,3 +78,40 @@ def test_under_torchrun_another_ranks_error_names_its_rank(monkeypatch, rank, pr
         monkeypatch.setenv("RANK", rank)
     result = CliRunner().invoke(probe_app(SianmsError("--epochs: must be >= 1")), ["fail"])
     assert result.exit_code == 2 and result.output == f"{prefix}--epochs: must be >= 1\n"
+
+
+def test_an_interrupt_a_library_swallowed_still_ends_the_run_as_interrupted(monkeypatch, capsys):
+    """A KeyboardInterrupt raised in a C callback (numba's compiler) or caught by a library is lost;
+    the signal is not: the command line ends with 130 and the interrupted line all the same."""
+    from sianms_cli import processes
+    from sianms_cli.cli import _app
+
+    monkeypatch.setattr(processes, "_SIGNALS_RECEIVED", [])
+    monkeypatch.setattr(_app, "_interrupt_said", [])
+    monkeypatch.delenv("RANK", raising=False)
+    handlers = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    try:
+        processes.interrupt_on_signals()
+        assert _app.exit_code_after_signals(0) == 0
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1)
+        except KeyboardInterrupt:
+            pass  # swallowed
+        assert _app.exit_code_after_signals(0) == 130
+    finally:
+        signal.signal(signal.SIGINT, handlers[0])
+        signal.signal(signal.SIGTERM, handlers[1])
+    assert capsys.readouterr().err == f"interrupted (SIGINT); {_app.INTERRUPTED}\n"
+
+
+@pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_signal_while_the_command_line_starts_is_one_line(signum, code):
+    """The executable handles both signals from its first statement: no traceback out of an import."""
+    probe = ("import os, time; from sianms_cli import entry; entry.signal.signal(entry.signal.SIGINT, "
+             "entry._end_while_starting); entry.signal.signal(entry.signal.SIGTERM, entry._end_while_starting); "
+             f"os.kill(os.getpid(), {int(signum)}); time.sleep(10)")
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
+    name = signal.Signals(signum).name
+    assert (done.returncode, done.stderr) == (code, f"interrupted ({name}) while starting; nothing was written\n")
+    assert 'sianms = "sianms_cli.entry:main"' in (Path(__file__).parents[1] / "pyproject.toml").read_text()

@@ -5,16 +5,17 @@ import sys
 import typer
 from typer.main import get_command
 
-from sianms_cli.cli._app import app
-from sianms_cli.processes import terminate_on_sigterm
+from sianms_cli.cli._app import app, exit_code_after_signals
+from sianms_cli.processes import interrupt_on_signals, signal_received
 from sianms_cli.cli import demo, evaluate, info, metrics, prepare, report, synth, train  # noqa: F401  (importing registers the subcommands)
 
 
 def main() -> None:
     """Console entry point. A flag the parser refuses (a bad type, a value out of range, an
     unknown or missing option) ends, as every other bad input, in one ``error:`` line and
-    exit code 2; a bare command still prints its help."""
-    terminate_on_sigterm()
+    exit code 2; a bare command still prints its help. SIGINT and SIGTERM end in 130 and 143
+    with one ``interrupted`` line, wherever they land (:func:`exit_code_after_signals`)."""
+    interrupt_on_signals()
     try:
         code = get_command(app).main(prog_name="sianms", standalone_mode=False)
     except typer.TyperException as error:  # typer's click exceptions derive from it
@@ -24,8 +25,11 @@ def main() -> None:
         else:
             message = " ".join(error.format_message().split())
             typer.echo(f"error: {context.command_path}: {message} (see '{context.command_path} -h')", err=True)
-        sys.exit(error.exit_code)
-    except typer.Abort:
-        typer.echo("aborted", err=True)
-        sys.exit(1)
-    sys.exit(code if isinstance(code, int) else 0)
+        code = error.exit_code
+    except typer.Abort:  # click's word for a KeyboardInterrupt while it parsed
+        if signal_received() is None:
+            typer.echo("aborted", err=True)
+        code = 1
+    except KeyboardInterrupt:  # one that came before a command's own handling, or after it
+        code = 130
+    sys.exit(exit_code_after_signals(code if isinstance(code, int) else 0))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import os
+import signal
 from typing import Callable
 
 import typer
@@ -11,7 +12,10 @@ import typer
 from sianms_cli import __version__
 from sianms_cli.errors import SianmsError
 from sianms_cli.io import describe_os_error
-from sianms_cli.processes import Terminated
+from sianms_cli.processes import Terminated, signal_received
+
+INTERRUPTED = "finished outputs are kept, a rerun resumes or starts afresh"
+_interrupt_said: list[bool] = []
 
 def _typer(name: str, help: str) -> typer.Typer:
     """A command (group) with the project's settings: -h, plain click help, no tracebacks."""
@@ -91,6 +95,25 @@ def follower_rank() -> int | None:
     return None if rank == "0" else int(rank) if rank.isdigit() else None
 
 
+def say_interrupted(terminated: bool) -> None:
+    """The one line an interrupted run ends with (rank 0's alone under torchrun)."""
+    if follower_rank() is None:
+        typer.echo(f"interrupted ({'SIGTERM' if terminated else 'SIGINT'}); {INTERRUPTED}", err=True)
+    _interrupt_said.append(True)
+
+
+def exit_code_after_signals(code: int) -> int:
+    """``code``, or 130 / 143 when SIGINT / SIGTERM came, with the interrupted line if the command
+    did not say it: the signal came while typer parsed the command line, or a library swallowed
+    the KeyboardInterrupt and the run went on."""
+    signum = signal_received()
+    if signum is None:
+        return code
+    if not _interrupt_said:
+        say_interrupted(signum == signal.SIGTERM)
+    return 128 + signum
+
+
 def command(name: str, group: typer.Typer | None = None) -> Callable[[Callable], Callable]:
     """Register a subcommand (of ``group``, default the root) whose failures end in one
     ``error:`` line, never a traceback.
@@ -117,9 +140,7 @@ def command(name: str, group: typer.Typer | None = None) -> Callable[[Callable],
                 raise typer.Exit(2) from None
             except KeyboardInterrupt as interrupt:
                 terminated = isinstance(interrupt, Terminated)
-                if rank is None:
-                    typer.echo(f"interrupted ({'SIGTERM' if terminated else 'SIGINT'}); "
-                               "finished outputs are kept, a rerun resumes or starts afresh", err=True)
+                say_interrupted(terminated)
                 raise typer.Exit(143 if terminated else 130) from None
 
         return (app if group is None else group).command(name)(run)
