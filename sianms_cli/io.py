@@ -18,6 +18,7 @@ import fcntl
 import hashlib
 import json
 import os
+import re
 import secrets
 import shutil
 from contextlib import contextmanager
@@ -83,6 +84,15 @@ def os_errors_as_output_errors(path: str | Path) -> Iterator[None]:
 def partial_name(path: Path) -> Path:
     """A hidden, unique temporary name beside ``path``."""
     return path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}{PARTIAL_SUFFIX}")
+
+
+_PARTIAL_NAME = re.compile(rf"\.(.+)\.[0-9]+\.[0-9a-f]{{8}}{re.escape(PARTIAL_SUFFIX)}")
+
+
+def partial_of(name: str) -> str | None:
+    """The file name a :func:`partial_name` was made for (a killed write leaves one), or None."""
+    match = _PARTIAL_NAME.fullmatch(name)
+    return match.group(1) if match else None
 
 
 def make_folder(path: str | Path) -> Path:
@@ -184,6 +194,31 @@ def refuse_non_file(path: Path) -> None:
         raise OutputError(f"cannot write {path}: it is a folder")
     if path.exists() and not path.is_file():
         raise OutputError(f"cannot write {path}: not a regular file")
+
+
+def write_texts_together(texts: dict[Path, str], *, overwrite: bool = False) -> None:
+    """Write each ``{path: text}`` (UTF-8) under its temporary name, then rename them all into place.
+
+    A failure (a full disk, a file where a folder must be) leaves none of the paths written and
+    none replaced: the temporary files are removed, and a file already renamed when a later
+    rename fails is deleted. Refuses a folder, and an existing file unless ``overwrite``.
+    """
+    files: list[AtomicFile] = []
+    committed: list[Path] = []
+    try:
+        for path, text in texts.items():
+            files.append(AtomicFile(check_writable_output(path, overwrite=overwrite)))
+            with os_errors_as_output_errors(path):
+                files[-1].stream.write(text.encode("utf-8"))
+                files[-1].stream.flush()  # a full disk fails here, before anything is renamed
+        for file in files:
+            committed.append(file.commit())
+    except BaseException:
+        for file in files:
+            file.discard()
+        for path in committed:
+            path.unlink(missing_ok=True)
+        raise
 
 
 def check_writable_output(path: str | Path, *, overwrite: bool) -> Path:
@@ -292,6 +327,13 @@ def publish_folder(staging: Path, destination: str | Path) -> Path:
 def remove_folder(path: Path) -> None:
     """Delete a folder this run created (a staging folder); missing is fine."""
     shutil.rmtree(path, ignore_errors=True)
+
+
+def first_foreign_file(folder: Path, is_own: Callable[[Path], bool]) -> Path | None:
+    """The first entry of ``folder`` (by name) that is not a plain file ``is_own`` accepts (a link
+    or a folder never is), or None: what ``--overwrite`` must not delete with the folder."""
+    return next((entry for entry in sorted(folder.iterdir())
+                 if entry.is_symlink() or not entry.is_file() or not is_own(entry)), None)
 
 
 def is_inside_working_folder(path: str | Path) -> bool:

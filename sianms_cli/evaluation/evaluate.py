@@ -60,7 +60,7 @@ from sianms_cli.evaluation.results import (
     read_results,
     validate_results,
 )
-from sianms_cli.io import AtomicFile, check_writable_output, os_errors_as_output_errors, read_json, write_text
+from sianms_cli.io import check_writable_output, read_json, write_text, write_texts_together
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.tables import check_version_name
 from sianms_cli.nuscenes.rigs import sample_rigs
@@ -132,7 +132,7 @@ def run(config: MetricsConfig, out: str | Path | None = None, *, details: str | 
     ``out`` (the JSON report, :func:`~sianms_cli.evaluation.report.write_report`) and
     ``details`` (the 101-point curves of every region, :func:`write_details`) are refused
     before any work when they are a folder, the results file, the same file, or exist while
-    ``overwrite`` is false; they are written atomically together (:func:`write_together`), so a
+    ``overwrite`` is false; they are written atomically together (:func:`~sianms_cli.io.write_texts_together`), so a
     run that fails to write one leaves neither. ``progress`` hears of the results file's bytes
     read, then of the regions evaluated.
     """
@@ -161,33 +161,8 @@ def run(config: MetricsConfig, out: str | Path | None = None, *, details: str | 
     texts = {Path(out): report_json(report) + "\n"} if out is not None else {}
     if details is not None:
         texts[Path(details)] = details_json(curves)
-    write_together(texts, overwrite=overwrite)
+    write_texts_together(texts, overwrite=overwrite)
     return report
-
-
-def write_together(texts: Mapping[Path, str], *, overwrite: bool = False) -> None:
-    """Write each ``{path: text}`` (UTF-8) under its temporary name, then rename them all into place.
-
-    A failure (a full disk, a file where a folder must be) leaves none of the paths written and
-    none replaced: the temporary files are removed, and a file already renamed when a later
-    rename fails is deleted. Refuses a folder, and an existing file unless ``overwrite``.
-    """
-    files: list[AtomicFile] = []
-    committed: list[Path] = []
-    try:
-        for path, text in texts.items():
-            files.append(AtomicFile(check_writable_output(path, overwrite=overwrite)))
-            with os_errors_as_output_errors(path):
-                files[-1].stream.write(text.encode("utf-8"))
-                files[-1].stream.flush()  # a full disk fails here, before anything is renamed
-        for file in files:
-            committed.append(file.commit())
-    except BaseException:
-        for file in files:
-            file.discard()
-        for path in committed:
-            path.unlink(missing_ok=True)
-        raise
 
 
 # --------------------------------------------------------------------------- curves: metrics_details.json

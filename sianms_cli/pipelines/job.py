@@ -39,7 +39,7 @@ from sianms_cli.data.cache import complete_manifest
 from sianms_cli.detection2d.classes import check_classes
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_seed, check_workers
 from sianms_cli.geometry.bev import AXIS_MODES
-from sianms_cli.io import (PARTIAL_SUFFIX, atomic_file, exclusive_lock, make_folder, read_json, release_lock, sha256_of,
+from sianms_cli.io import (atomic_file, exclusive_lock, make_folder, partial_of, read_json, release_lock, sha256_of,
                            try_lock, write_json)
 from sianms_cli.nuscenes.fingerprint import dataset_fingerprint
 from sianms_cli.nuscenes.loader import NuScenesDB
@@ -60,7 +60,6 @@ KIND = "sianms-eval"
 _METHOD = "|".join([*map(re.escape, METHODS), *(rf"{re.escape(name)}@[0-9.e+-]+" for name in IOU_METHODS)])
 _EVAL_FILE = re.compile(rf"(?:results|metrics|metrics_details)_(?:{_METHOD})\.json|table\.json|table\.md|pr_curves\.png"
                         r"|curves\.json")
-_PARTIAL = re.compile(rf"\.(.+)\.[0-9]+\.[0-9a-f]{{8}}{re.escape(PARTIAL_SUFFIX)}")  # io.partial_name's
 
 
 @dataclass(frozen=True)
@@ -244,8 +243,8 @@ def _is_eval_entry(entry: Path, folder: str = "") -> bool:
     report folder: what ``--overwrite`` may delete. Links never are."""
     if entry.is_symlink():
         return False
-    partial = _PARTIAL.fullmatch(entry.name)
-    name = partial.group(1) if partial else entry.name
+    partial = partial_of(entry.name)
+    name = partial or entry.name
     if entry.is_file():
         if folder:
             return name.endswith({SCENES: (".parquet", ".lock"), PICTURES: (".png",)}.get(folder, ()))

@@ -35,7 +35,7 @@ from types import MappingProxyType
 from typing import Any, Mapping
 
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
-from sianms_cli.io import build_folder, is_inside_working_folder, read_json, write_text
+from sianms_cli.io import build_folder, first_foreign_file, is_inside_working_folder, read_json, write_text
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.reporting.eval_table import (
     COLUMNS,
@@ -582,8 +582,7 @@ def is_report_folder(folder: Path) -> bool:
 def foreign_entry(folder: Path) -> Path | None:
     """The first entry of ``folder`` (by name) that no report writes (:data:`REPORT_ENTRIES`, plain files; a
     link or a folder never is), or None when every entry is a report's."""
-    return next((entry for entry in sorted(folder.iterdir())
-                 if entry.name not in REPORT_ENTRIES or entry.is_symlink() or not entry.is_file()), None)
+    return first_foreign_file(folder, lambda entry: entry.name in REPORT_ENTRIES)
 
 
 def check_output(out: Path, overwrite: bool) -> None:

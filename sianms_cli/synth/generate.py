@@ -294,23 +294,17 @@ def _foreign_within(entry: Path, version: str) -> Path | None:
     if entry.name not in (version, *DATAROOT_FOLDERS) or not entry.is_dir():
         return entry
     if entry.name == version:
-        return _first_not_matching(entry, lambda file: file.name in VERSION_FILES)
+        return io.first_foreign_file(entry, lambda file: file.name in VERSION_FILES)
     if entry.name == "maps":
-        return _first_not_matching(entry, lambda file: file.suffix == ".png")
+        return io.first_foreign_file(entry, lambda file: file.suffix == ".png")
     for channel in sorted(entry.iterdir()):
         suffix = ".jpg" if channel.name in CAMERA_CHANNELS else ".pcd.bin" if channel.name == "LIDAR_TOP" else None
         if suffix is None or channel.is_symlink() or not channel.is_dir():
             return channel
-        foreign = _first_not_matching(channel, lambda file: file.name.endswith(suffix))
+        foreign = io.first_foreign_file(channel, lambda file: file.name.endswith(suffix))
         if foreign is not None:
             return foreign
     return None
-
-
-def _first_not_matching(folder: Path, is_synth_file: Callable[[Path], bool]) -> Path | None:
-    """The first entry of ``folder`` that is not a plain file ``is_synth_file`` accepts, or None."""
-    return next((entry for entry in sorted(folder.iterdir())
-                 if entry.is_symlink() or not entry.is_file() or not is_synth_file(entry)), None)
 
 
 def _marker(config: SynthConfig, names: list[str]) -> dict:

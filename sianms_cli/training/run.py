@@ -444,10 +444,7 @@ class RunFolder:
         it and them left them behind it (a resume with no epoch left to train runs only this)."""
         if not self._history:
             return
-        table = metrics_csv(self._history).encode()
-        metrics = self.path / METRICS
-        if not metrics.is_file() or metrics.read_bytes() != table:
-            write_bytes(metrics, table)
+        write_bytes(self.path / METRICS, metrics_csv(self._history).encode())
         if not (self.path / CURVES).is_file():
             self._plot()
 
