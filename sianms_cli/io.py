@@ -21,7 +21,7 @@ import os
 import re
 import secrets
 import shutil
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import IO, Any, Callable, Iterator, TypeVar
 
@@ -366,21 +366,43 @@ def exclusive_lock(lock_path: str | Path, *, what: str, blocking: bool = False) 
     :class:`FolderBusyError` naming ``what`` and the holder's pid.
     """
     lock_path = Path(lock_path)
-    descriptor = _open_lock_file(lock_path)
+    made_folder, made_file = not lock_path.parent.is_dir(), not lock_path.exists()
+    try:
+        descriptor = _open_lock_file(lock_path)
+    except OutputError:
+        _remove_made(lock_path, made_file, made_folder)
+        raise
     try:
         try:
-            fcntl.flock(descriptor, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
-        except OSError as error:
-            if error.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-                raise OutputError(f"cannot lock {describe_os_error(error, lock_path)}") from None
-            holder = os.pread(descriptor, 32, 0).decode(errors="replace").strip() or "unknown"
-            raise FolderBusyError(f"{what} is in use by another sianms process (pid {holder})") from None
-        with os_errors_as_output_errors(lock_path):
-            os.ftruncate(descriptor, 0)
-            os.pwrite(descriptor, f"{os.getpid()}\n".encode(), 0)
+            _take_lock(descriptor, lock_path, what, blocking)
+        except OutputError:  # a full disk, not a busy folder: what this call made is all there is
+            _remove_made(lock_path, made_file, made_folder)
+            raise
         yield
     finally:
         os.close(descriptor)
+
+
+def _take_lock(descriptor: int, lock_path: Path, what: str, blocking: bool) -> None:
+    try:
+        fcntl.flock(descriptor, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
+    except OSError as error:
+        if error.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+            raise OutputError(f"cannot lock {describe_os_error(error, lock_path)}") from None
+        holder = os.pread(descriptor, 32, 0).decode(errors="replace").strip() or "unknown"
+        raise FolderBusyError(f"{what} is in use by another sianms process (pid {holder})") from None
+    with os_errors_as_output_errors(lock_path):
+        os.ftruncate(descriptor, 0)
+        os.pwrite(descriptor, f"{os.getpid()}\n".encode(), 0)
+
+
+def _remove_made(lock_path: Path, made_file: bool, made_folder: bool) -> None:
+    """Undo a lock that was never taken: its file, and its folder if still empty."""
+    with suppress(OSError):
+        if made_file:
+            lock_path.unlink(missing_ok=True)
+        if made_folder:
+            lock_path.parent.rmdir()
 
 
 def try_lock(lock_path: str | Path) -> int | None:

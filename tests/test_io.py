@@ -197,6 +197,32 @@ def test_exclusive_lock_refuses_a_second_holder_and_names_the_first(tmp_path):
     io.release_lock(descriptor)
 
 
+def test_a_lock_that_cannot_be_taken_leaves_only_what_was_there(tmp_path, monkeypatch):
+    """A full disk when the lock file gets its pid: the error names the lock file; the lock file
+    and the folder this call made are gone, a folder and a lock file that were there stay."""
+    def full(*_):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(os, "pwrite", full)
+    fresh = tmp_path / "new" / ".lock"
+    with pytest.raises(io.OutputError, match=r"cannot write .*new/\.lock: No space left on device"):
+        with io.exclusive_lock(fresh, what="new"):
+            pass
+    assert list(tmp_path.iterdir()) == []
+    kept = tmp_path / "old" / ".lock"
+    kept.parent.mkdir()
+    kept.write_text("")
+    with pytest.raises(io.OutputError):
+        with io.exclusive_lock(kept, what="old"):
+            pass
+    assert [entry.name for entry in kept.parent.iterdir()] == [".lock"]
+    (tmp_path / "other").mkdir()
+    with pytest.raises(io.OutputError):
+        with io.exclusive_lock(tmp_path / "other" / ".lock", what="other"):
+            pass
+    assert (tmp_path / "other").is_dir() and list((tmp_path / "other").iterdir()) == []
+
+
 def test_sha256_of(tmp_path):
     (tmp_path / "x").write_bytes(b"abc")
     assert io.sha256_of(tmp_path / "x") == "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"

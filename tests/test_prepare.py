@@ -8,6 +8,7 @@ import pytest
 
 from sianms_cli.data.cache import decode_roi_features, read_dataset, roi_feature_shape
 from sianms_cli.data.index import build_pair_index
+from sianms_cli.detection2d.external import ExternalDetections
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
 from sianms_cli.evaluation.boxes import LABEL
 from sianms_cli.evaluation.dataset import ego_poses, eval_split, ground_truth
@@ -265,6 +266,19 @@ def test_external_detections_file(config, dataroot, tmp_path):
     with pytest.raises(DataFormatError, match="x1 < x2"):
         prepare(PrepareConfig(config.dataroot, config.version, "mini_train", detector=f"file:{tmp_path / 'bad.json'}"),
                 tmp_path / "out2")
+    width, height = (int(db.table("sample_data").column(name)[db.table("sample_data").indices([front])[0]])
+                     for name in ("width", "height"))
+    beyond = [(width, 10, width + 40, 50), (-40, 10, 0, 50), (10, height, 50, height + 30), (10, -30, 50, 0)]
+    for row, box in enumerate(beyond):
+        boxes = [dict(zip(("x1", "y1", "x2", "y2"), (10, 20, 60, 70))), dict(zip(("x1", "y1", "x2", "y2"), box))]
+        path.write_text(json.dumps([{"sample_data_token": front, **b, "score": 0.5, "class": "car"} for b in boxes]))
+        with pytest.raises(DataFormatError, match=rf"^{path}: record {front}: field 'x1/y1/x2/y2': row 1: box lies wholly "
+                                                  "outside its image"):
+            prepare(PrepareConfig(config.dataroot, config.version, "mini_train", detector=f"file:{path}"),
+                    tmp_path / f"beyond{row}")
+    path.write_text(json.dumps([{"sample_data_token": front, "x1": -5.0, "y1": -5.0, "x2": width + 5.0,
+                                 "y2": height + 5.0, "score": 0.5, "class": "car"}]))
+    ExternalDetections(path, db, ("car",))  # reaching past every border is a detector's habit: accepted
 
 
 def test_readable_by_pandas_if_installed(cache):

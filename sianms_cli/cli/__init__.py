@@ -13,17 +13,22 @@ from sianms_cli.cli import demo, evaluate, info, metrics, prepare, report, synth
 def main() -> None:
     """Console entry point. A flag the parser refuses (a bad type, a value out of range, an
     unknown or missing option) ends, as every other bad input, in one ``error:`` line and
-    exit code 2; a bare command still prints its help. SIGINT and SIGTERM end in 130 and 143
+    exit code 2; a bare group (``sianms``, ``sianms train``) prints its help, then that line.
+    SIGINT and SIGTERM end in 130 and 143
     with one ``interrupted`` line, wherever they land (:func:`exit_code_after_signals`)."""
     interrupt_on_signals()
     try:
         code = get_command(app).main(prog_name="sianms", standalone_mode=False)
     except typer.TyperException as error:  # typer's click exceptions derive from it
         context = getattr(error, "ctx", None)
-        if type(error).__name__ == "NoArgsIsHelpError" or context is None:
+        if context is None:
             error.show()
         else:
-            message = " ".join(error.format_message().split())
+            if type(error).__name__ == "NoArgsIsHelpError":
+                error.show()
+                message = "missing command."
+            else:
+                message = " ".join(error.format_message().split())
             typer.echo(f"error: {context.command_path}: {message} (see '{context.command_path} -h')", err=True)
         code = error.exit_code
     except typer.Abort:  # click's word for a KeyboardInterrupt while it parsed

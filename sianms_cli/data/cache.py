@@ -31,6 +31,7 @@ from typing import Any, Iterator
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from sianms_cli.data.schemas import DATASETS, SCHEMA_VERSION
@@ -264,6 +265,25 @@ def read_shard_table(path: Path, columns: list[str] | None = None, filters: list
     """``pq.read_table`` of one cache shard file; a damaged file raises DataFormatError naming it."""
     with reading_shard(path):
         return pq.read_table(path, columns=columns, filters=filters)
+
+
+def require_finite(path: Path, table: pa.Table, columns: list[str]) -> None:
+    """Raise DataFormatError naming the first record (``detection_id``) and field of ``table`` that
+    holds a NaN or an infinity in one of ``columns`` (a list column element by element; nulls pass).
+
+    Our own writers never store one; a hand-edited or damaged cache would otherwise surface later
+    as a NaN box blamed on the file it ended up in."""
+    for column in columns:
+        values = table[column].combine_chunks()
+        rows = None
+        if pa.types.is_list(values.type):
+            rows = pc.list_parent_indices(values).to_numpy()
+            values = pc.list_flatten(values)
+        bad = np.flatnonzero(~pc.is_finite(values).fill_null(True).to_numpy(zero_copy_only=False))
+        if len(bad):
+            row = bad[0] if rows is None else rows[bad[0]]
+            raise DataFormatError(path, "not a finite number; rerun `sianms prepare` on the cache to rebuild it",
+                                  token=str(table["detection_id"][int(row)]), field=column)
 
 
 def read_dataset(root: Path, name: str, columns: list[str] | None = None) -> pa.Table:

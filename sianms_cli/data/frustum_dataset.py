@@ -48,13 +48,15 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from sianms_cli.data.cache import read_shard_table
+from sianms_cli.data.cache import read_shard_table, require_finite
 from sianms_cli.errors import DataFormatError
 from sianms_cli.nuscenes.classes import PAPER_CLASSES
 
 INTENSITY_SCALE = 255.0
 FRUSTUM_COLUMNS = ["detection_id", "class", "score", "source", "rot_angle", "x", "y", "z", "intensity", "label",
                    "box_size", "box_center_frustum", "box_heading_frustum"]
+NUMERIC_FRUSTUM_COLUMNS = ["score", "rot_angle", "x", "y", "z", "intensity", "box_size", "box_center_frustum",
+                           "box_heading_frustum"]
 
 
 @dataclass(frozen=True)
@@ -140,6 +142,7 @@ def _box_heights(frustums_path: Path, detection_id: pa.ChunkedArray) -> np.ndarr
 def read_shard(path: Path, selection: FrustumSelection) -> ShardFrustums:
     """The kept frustums of one shard file (module docstring), converted to F-PointNets' conventions."""
     table = read_shard_table(path, columns=FRUSTUM_COLUMNS)
+    require_finite(path, table, NUMERIC_FRUSTUM_COLUMNS)
     if selection.min_box_height > 0:
         table = table.filter(pa.array(_box_heights(path, table["detection_id"]) >= selection.min_box_height))
     return frustums_of_table(table, selection)

@@ -5,7 +5,7 @@ Schema (one row per detection), Parquet or JSON:
 | field | type | meaning |
 |---|---|---|
 | ``sample_data_token`` | string | the camera sample_data (image) the detection is in |
-| ``x1``, ``y1``, ``x2``, ``y2`` | float | box in pixels of the original image, ``x1 < x2``, ``y1 < y2`` |
+| ``x1``, ``y1``, ``x2``, ``y2`` | float | box in pixels of the original image, ``x1 < x2``, ``y1 < y2``; it may reach past the image's border, not lie wholly beyond it |
 | ``score`` | float | confidence in [0, 1] |
 | ``class`` | string | a nuScenes detection class (``car``, ``pedestrian``, ``bicycle``, ...) |
 
@@ -54,6 +54,10 @@ class ExternalDetections:
         modalities = db.sample_data_modalities()[rows] if len(rows) else np.zeros(0, dtype=str)
         _reject(self.path, tokens, modalities != "camera", "sample_data_token",
                 "is not a camera image")
+        sample_data = db.table("sample_data")
+        width, height = (sample_data.column(name)[rows].astype(np.float64) for name in ("width", "height"))
+        _reject(self.path, tokens, (boxes[:, 2] <= 0) | (boxes[:, 3] <= 0) | (boxes[:, 0] >= width)
+                | (boxes[:, 1] >= height), "x1/y1/x2/y2", "box lies wholly outside its image")
         keep = np.isin(names, classes)
         tokens, boxes, scores, names = tokens[keep], boxes[keep], scores[keep], names[keep]
         order = np.argsort(tokens, kind="stable")

@@ -348,7 +348,6 @@ def run(config: EvalConfig, out: str | Path, *, overwrite: bool = False, progres
     predictor, encoder, dis_thr = load_models(config)
     resolved = resolved_config(config, db, names, dis_thr)
     settings = scene_settings(config, cache_config, dis_thr)
-    make_folder(out)
     with exclusive_lock(out / LOCK, what=str(out), blocking=True):
         if claim_output(out, resolved, overwrite):
             return EvalResult(out, read_json(out / MARKER), scenes_skipped=names, table=read_json(out / "table.json"))

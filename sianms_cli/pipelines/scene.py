@@ -40,7 +40,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from sianms_cli.data.cache import decode_roi_features, read_shard_table, roi_feature_shape
+from sianms_cli.data.cache import decode_roi_features, read_shard_table, require_finite, roi_feature_shape
 from sianms_cli.geometry.rig import CameraRig
 from sianms_cli.geometry.transforms import sensor_to_global
 from sianms_cli.nuscenes.loader import NuScenesDB
@@ -62,6 +62,7 @@ STAGES = ("read", "fpointnet_single", "candidates", "embed", "assign", "union_fr
 DETECTION_COLUMNS = ["detection_id", "sample_token", "sample_data_token", "camera", "x1", "y1", "x2", "y2",
                      "score", "class", "source", "instance_token", "image_width", "image_height"]
 FRUSTUM_COLUMNS = ["detection_id", "rot_angle", "x", "y", "z", "intensity"]
+NUMERIC_DETECTION_COLUMNS = ["x1", "y1", "x2", "y2", "score"]
 
 BOXES_SCHEMA = pa.schema([
     ("scene_token", pa.string()),
@@ -150,8 +151,10 @@ class SceneEvaluator:
         self.seconds = Counter()
         with self._timed("read"):
             detections = read_shard_table(detections_path, columns=DETECTION_COLUMNS)
-            frustums = _frustum_points(read_shard_table(frustums_path, columns=FRUSTUM_COLUMNS),
-                                       detections["detection_id"])
+            require_finite(detections_path, detections, NUMERIC_DETECTION_COLUMNS)
+            frustum_table = read_shard_table(frustums_path, columns=FRUSTUM_COLUMNS)
+            require_finite(frustums_path, frustum_table, FRUSTUM_COLUMNS[1:])
+            frustums = _frustum_points(frustum_table, detections["detection_id"])
             records = scene_records(self.db, scene_token, self.settings.sweeps)
         samples = detections["sample_token"].to_numpy(zero_copy_only=False).astype(str)
         rigs, rig_of = sample_rigs(self.db, list(records.sample_tokens))

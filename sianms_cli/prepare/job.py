@@ -31,7 +31,7 @@ from sianms_cli.data.cache import (
 )
 from sianms_cli.data.schemas import DATASETS
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_workers
-from sianms_cli.io import PARTIAL_SUFFIX, FolderBusyError, exclusive_lock, make_folder, release_lock, try_lock
+from sianms_cli.io import PARTIAL_SUFFIX, FolderBusyError, exclusive_lock, release_lock, try_lock
 from sianms_cli.nuscenes.fingerprint import dataset_fingerprint
 from sianms_cli.nuscenes.tables import CAMERA_CHANNELS
 from sianms_cli.processes import TASK_TORCH_THREADS, task_torch_threads, worker_pool
@@ -281,7 +281,6 @@ def run(
     expected = [name for _, name in scenes]
     resolved = config.resolved(dataset_fingerprint(db.table_root), expected)
     refuse_foreign_folder(out)
-    make_folder(out)
     with exclusive_lock(out / FOLDER_LOCK, what=str(out), blocking=True):
         claim_output(out, resolved, expected, db.dataroot, overwrite)
     finished = {name for _, name in mine if shard_done(out, name)}

@@ -411,9 +411,7 @@ class RunFolder:
                 lock.__enter__()
             except FolderBusyError:  # the other run's files are not this one's to clean up
                 raise
-            except Exception:  # a full disk: the lock file, and the folder, are all this run made
-                if FOLDER_LOCK_NAME not in self._found:
-                    (self.path / FOLDER_LOCK_NAME).unlink(missing_ok=True)
+            except Exception:  # a full disk: the lock left no file, so the folder is all this run made
                 self._remove_folder_if_made()
                 raise
             self._lock = lock

@@ -39,9 +39,13 @@ def test_a_flag_the_parser_refuses_is_one_error_line():
     assert unknown.returncode == 2 and unknown.stderr.startswith("error: sianms info: No such option: --bogus")
 
 
-def test_a_bare_command_group_prints_its_help():
-    bare = sianms("train")
-    assert bare.returncode == 2 and "siamese" in bare.stdout + bare.stderr and "error:" not in bare.stderr
+def test_a_bare_command_group_prints_its_help_then_one_error_line():
+    for group, subcommand in ((("train",), "siamese"), ((), "synth")):
+        bare = sianms(*group)
+        path = " ".join(("sianms", *group))
+        assert bare.returncode == 2 and subcommand in bare.stderr and bare.stdout == ""
+        assert bare.stderr.splitlines()[-1] == f"error: {path}: missing command. (see '{path} -h')"
+        assert bare.stderr.count("error:") == 1
 
 
 def test_info_as_json_and_as_text(synthetic_dataroot, tmp_path):

@@ -183,3 +183,22 @@ def test_union_frustums_are_trained_in_the_same_shuffled_batches(cache, unions):
 def test_a_missing_union_shard_is_a_format_error(cache, tmp_path):
     with pytest.raises(DataFormatError, match="union frustums"):
         list(iterate_batches(cache, FrustumSelection(), 4, np.random.default_rng(0), train=False, unions=tmp_path))
+
+
+@pytest.mark.parametrize("field, value", [("rot_angle", np.nan), ("z", np.inf), ("box_center_frustum", np.nan)])
+def test_a_number_that_is_not_finite_names_its_file_record_and_field(tmp_path, field, value):
+    """A NaN in a cache a user edited or damaged: one error at the read, not a NaN loss (or a NaN
+    box blamed on another file) later. A frustum without a box (nulls) is fine."""
+    rng = np.random.default_rng(1)
+    rows = [frustum_row(rng, "ok", "car", (2.0, 5.0, 1.5), 30), frustum_row(rng, "nobox", "car", (2.0, 5.0, 1.5), 30, box=False),
+            frustum_row(rng, "bad", "car", (2.0, 5.0, 1.5), 30)]
+    bad = rows[2][0]
+    if isinstance(bad[field], (list, np.ndarray)):
+        bad[field] = np.asarray(bad[field], dtype=float)
+        bad[field][-1] = value
+    else:
+        bad[field] = value
+    root = write_cache(tmp_path / "cache", {"scene-1": rows})
+    path = root / "frustums" / "scene-1.parquet"
+    with pytest.raises(DataFormatError, match=rf"^{path}: record bad: field '{field}': not a finite number"):
+        read_shard(path, FrustumSelection())

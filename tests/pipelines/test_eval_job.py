@@ -4,6 +4,7 @@ import json
 import shutil
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
@@ -222,3 +223,18 @@ def test_two_workers_write_the_same_scenes_as_one(eval_inputs, evaluated, tmp_pa
     for path in sorted((out / "scenes").glob("*.parquet")):
         assert pq.read_table(tmp_path / "two" / "scenes" / path.name).replace_schema_metadata(None).equals(
             pq.read_table(path).replace_schema_metadata(None)), path.name
+
+
+def test_a_nan_in_the_cache_is_blamed_on_the_cache_file(eval_inputs, tmp_path):
+    cache = tmp_path / "cache"
+    shutil.copytree(eval_inputs.cache, cache)
+    path = sorted((cache / "frustums").glob("*.parquet"))[0]
+    table = pq.read_table(path)
+    rot_angle = table["rot_angle"].to_numpy().copy()
+    rot_angle[3] = np.nan
+    table = table.set_column(table.schema.get_field_index("rot_angle"), "rot_angle",
+                             pa.array(rot_angle, table.schema.field("rot_angle").type))
+    pq.write_table(table, path)
+    record = table["detection_id"][3]
+    with pytest.raises(DataFormatError, match=rf"^{path}: record {record}: field 'rot_angle': not a finite number"):
+        run(config_of(eval_inputs, cache=str(cache), methods="vanilla"), tmp_path / "out")

@@ -1,5 +1,6 @@
 """`sianms prepare` as a job: the cache folder, its manifest, faults, interrupts, concurrent runs."""
 
+import errno
 import json
 import os
 import shutil
@@ -113,6 +114,17 @@ def test_sigint_stops_the_workers_and_leaves_an_incomplete_cache(dataroot, tmp_p
     assert not [pid for pid in workers if process_tree.alive(pid)]
     assert manifest_of(out)["complete"] is False
     assert not list(out.rglob("*.partial"))
+
+
+def test_a_full_disk_at_the_lock_leaves_no_output_folder(config, tmp_path, monkeypatch):
+    def full(*_):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(os, "pwrite", full)
+    out = tmp_path / "cache"
+    with pytest.raises(OutputError, match=f"cannot write {out}/.*lock: No space left on device"):
+        job.run(config, out)
+    assert not out.exists()
 
 
 def test_disk_full_is_one_error_and_leaves_no_partial_file(config, full_disk):
