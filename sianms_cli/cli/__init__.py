@@ -14,8 +14,8 @@ def main() -> None:
     """Console entry point. A flag the parser refuses (a bad type, a value out of range, an
     unknown or missing option) ends, as every other bad input, in one ``error:`` line and
     exit code 2; a bare group (``sianms``, ``sianms train``) prints its help, then that line.
-    SIGINT and SIGTERM end in 130 and 143
-    with one ``interrupted`` line, wherever they land (:func:`exit_code_after_signals`)."""
+    SIGINT and SIGTERM end in 130 and 143 with one ``interrupted`` line, wherever they land
+    (:func:`exit_code_after_signals`)."""
     interrupt_on_signals()
     try:
         code = get_command(app).main(prog_name="sianms", standalone_mode=False)
