@@ -1,7 +1,9 @@
 """How the ego drives through each scene: straight, turning, changing lanes.
 
 nuScenes is mostly go-straight driving (73.9 % of its planning scenarios, Li et al., arXiv
-2312.03031), and the ego's turns are what swing objects across camera seams. Two rules, on the
+2312.03031, by a rule the sources found do not state; 86.7 % of val's 5,119 key frames with
+3 s ahead by the command rule below, a third-party count), and the ego's turns are what swing
+objects across camera seams. Two rules, on the
 ego pose of each sample's LIDAR_TOP key frame:
 
 - a keyframe's driving command, as the nuScenes open-loop planning benchmark derives it (VAD's
