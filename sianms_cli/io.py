@@ -39,10 +39,8 @@ def discard_open_temporaries() -> None:
     """Delete the temporary files of every AtomicFile this process is writing: for a worker that
     is stopped mid-task and ends at once, without unwinding (``processes``)."""
     for temporary in list(_OPEN_TEMPORARIES):
-        try:
+        with suppress(OSError):
             temporary.unlink()
-        except OSError:
-            pass
 
 
 class OutputError(SianmsError):

@@ -21,14 +21,11 @@ def main() -> None:
         code = get_command(app).main(prog_name="sianms", standalone_mode=False)
     except typer.TyperException as error:  # typer's click exceptions derive from it
         context = getattr(error, "ctx", None)
-        if context is None:
+        bare_group = type(error).__name__ == "NoArgsIsHelpError"
+        if bare_group or context is None:
             error.show()
-        else:
-            if type(error).__name__ == "NoArgsIsHelpError":
-                error.show()
-                message = "missing command."
-            else:
-                message = " ".join(error.format_message().split())
+        if context is not None:
+            message = "missing command." if bare_group else " ".join(error.format_message().split())
             typer.echo(f"error: {context.command_path}: {message} (see '{context.command_path} -h')", err=True)
         code = error.exit_code
     except typer.Abort:  # click's word for a KeyboardInterrupt while it parsed

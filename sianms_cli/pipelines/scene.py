@@ -61,7 +61,8 @@ SINGLE, SIANMS, ORACLE = "single", "sianms", "oracle"
 STAGES = ("read", "fpointnet_single", "candidates", "embed", "assign", "union_frustums", "fpointnet_union")
 DETECTION_COLUMNS = ["detection_id", "sample_token", "sample_data_token", "camera", "x1", "y1", "x2", "y2",
                      "score", "class", "source", "instance_token", "image_width", "image_height"]
-FRUSTUM_COLUMNS = ["detection_id", "rot_angle", "x", "y", "z", "intensity"]
+NUMERIC_FRUSTUM_COLUMNS = ["rot_angle", "x", "y", "z", "intensity"]
+FRUSTUM_COLUMNS = ["detection_id", *NUMERIC_FRUSTUM_COLUMNS]
 NUMERIC_DETECTION_COLUMNS = ["x1", "y1", "x2", "y2", "score"]
 
 BOXES_SCHEMA = pa.schema([
@@ -153,7 +154,7 @@ class SceneEvaluator:
             detections = read_shard_table(detections_path, columns=DETECTION_COLUMNS)
             require_finite(detections_path, detections, NUMERIC_DETECTION_COLUMNS)
             frustum_table = read_shard_table(frustums_path, columns=FRUSTUM_COLUMNS)
-            require_finite(frustums_path, frustum_table, FRUSTUM_COLUMNS[1:])
+            require_finite(frustums_path, frustum_table, NUMERIC_FRUSTUM_COLUMNS)
             frustums = _frustum_points(frustum_table, detections["detection_id"])
             records = scene_records(self.db, scene_token, self.settings.sweeps)
         samples = detections["sample_token"].to_numpy(zero_copy_only=False).astype(str)
