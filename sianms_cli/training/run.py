@@ -439,11 +439,14 @@ class RunFolder:
 
     def _complete_epoch_files(self) -> None:
         """metrics.csv and curves.png of the latest checkpoint, where an interrupt between writing
-        it and them left them behind it (a resume with no epoch left to train runs only this)."""
+        it and them left them behind it (a resume with no epoch left to train runs only this).
+        curves.png is redrawn when it is missing or older than the checkpoint: an interrupt while
+        the last epoch's were drawn leaves those of an earlier epoch."""
         if not self._history:
             return
         write_bytes(self.path / METRICS, metrics_csv(self._history).encode())
-        if not (self.path / CURVES).is_file():
+        curves = self.path / CURVES
+        if not curves.is_file() or curves.stat().st_mtime_ns < self.checkpoint_path.stat().st_mtime_ns:
             self._plot()
 
     def _plot(self) -> None:

@@ -167,6 +167,25 @@ def test_a_resume_with_nothing_left_to_train_completes_the_tables_an_interrupt_c
     assert (out / METRICS).read_text() == metrics_csv(checkpoint.history)
 
 
+def test_a_resume_redraws_curves_an_interrupt_left_behind_the_checkpoint(tmp_path):
+    """F-PointNets draws every few epochs: an interrupt while the last epoch's curves are drawn
+    leaves an earlier epoch's curves.png, which the resume must not take for the latest."""
+    import os
+
+    out = tmp_path / "run"
+    _, checkpoint = small_checkpoint()
+    with pytest.raises(KeyboardInterrupt):
+        with RunFolder.open(out, kind="siamese", config=checkpoint.config) as run:
+            run.save(checkpoint)
+            run.save(checkpoint, curves=False)
+            raise KeyboardInterrupt
+    stale = (out / CHECKPOINT).stat().st_mtime_ns - 10**9
+    os.utime(out / CURVES, ns=(stale, stale))
+    with RunFolder.open(out, kind="siamese", config=checkpoint.config, resume=True):
+        pass
+    assert (out / CURVES).stat().st_mtime_ns > (out / CHECKPOINT).stat().st_mtime_ns
+
+
 def test_curves_and_metrics(tmp_path):
     history = [{"epoch": 1, "loss": 1.5, "auc": float("nan")}, {"epoch": 2, "loss": 0.25, "auc": 0.75, "new": 3}]
     assert metrics_csv(history) == "epoch,loss,auc,new\n1,1.5,,\n2,0.25,0.75,3\n"
