@@ -3,6 +3,7 @@ devkit's ``accumulate`` (devkit_port.py), at threshold and tie edges."""
 
 from __future__ import annotations
 
+import itertools
 import random
 
 import numpy as np
@@ -27,6 +28,7 @@ from sianms_cli.evaluation.algo import (
     velocity_l2,
     yaw_diff,
 )
+from sianms_cli.evaluation.algo import _NORM_FORMULAS, _norm_probes, _norm_rounding
 from sianms_cli.evaluation.boxes import ATTRIBUTE, TP_METRICS, make_boxes
 from sianms_cli.evaluation.config import load_config
 from sianms_cli.evaluation.metrics import NAN_TP_METRICS, summarize, threshold_key
@@ -104,6 +106,15 @@ def test_norm_2d_rounds_like_the_devkits_linalg_norm():
                               np.round(rng.uniform(-5, 5, (500, 2)), 1)])
     expected = np.array([np.linalg.norm(v) for v in vectors])
     assert np.array_equal(norm_2d(vectors[:, 0], vectors[:, 1]), expected)
+
+
+def test_the_norm_probe_tells_every_known_blas_rounding_apart():
+    # The three roundings OpenBLAS kernels give a 2-vector's norm; the probe must be able to pick any.
+    probes = _norm_probes()
+    lengths = {name: formula(probes[:, 0], probes[:, 1]) for name, formula in _NORM_FORMULAS.items()}
+    for first, second in itertools.combinations(lengths, 2):
+        assert np.sum(lengths[first] != lengths[second]) >= 10, (first, second)
+    assert _norm_rounding() in _NORM_FORMULAS
 
 
 def test_fma_is_correctly_rounded():
