@@ -57,6 +57,7 @@ from sianms_cli.nuscenes.tables import CAMERA_CHANNELS, SENSORS, TABLE_NAMES, ch
 from sianms_cli.nuscenes.sensors import write_jpeg, write_pcd_bin
 from sianms_cli.nuscenes.writer import DatasetWriter, attribute_token, category_token, make_token
 from sianms_cli.processes import worker_pool
+from sianms_cli.provenance import numeric_platform
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.synth.appearance import camera_style, sample_appearance
 from sianms_cli.synth.camera import CameraRender, CoverageCounts, coverage_counts, motion_blur_length, render_camera
@@ -308,9 +309,10 @@ def _foreign_within(entry: Path, version: str) -> Path | None:
 
 
 def _marker(config: SynthConfig, names: list[str]) -> dict:
-    """The provenance marker: what wrote this dataroot, with which resolved config."""
+    """The provenance marker: what wrote this dataroot, with which resolved config, on which platform."""
     resolved = dataclasses.replace(config, scenes=len(names))
-    return {"kind": MARKER_KIND, "sianms_version": __version__, "config": dataclasses.asdict(resolved)}
+    return {"kind": MARKER_KIND, "sianms_version": __version__, "config": dataclasses.asdict(resolved),
+            "platform": numeric_platform()}
 
 
 @contextmanager

@@ -11,6 +11,7 @@ from sianms_cli.geometry.transforms import apply_transform, sensor_to_global
 from sianms_cli.nuscenes.tables import SENSORS
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.synth import generate
+from sianms_cli.provenance import numeric_platform
 from sianms_cli.synth.generate import MARKER_NAME, SynthConfig, run, scene_names_for
 
 
@@ -148,6 +149,7 @@ def test_the_marker_records_what_wrote_the_dataroot(tiny_dataroot):
     assert marker["kind"] == "sianms synth dataroot" and marker["sianms_version"] == __version__
     assert marker["config"] == {"version": "v1.0-mini", "scenes": 2, "image_scale": 0.1, "seed": 3,
                                 "sensors": "all", "scene_seconds": 1.5}
+    assert marker["platform"] == numeric_platform() and marker["platform"]["numpy"] == np.__version__
     assert sorted(p.name for p in tiny_dataroot.iterdir()) == ["maps", "samples", MARKER_NAME, "sweeps", "v1.0-mini"]
 
 
