@@ -31,6 +31,7 @@ from sianms_cli.nuscenes.tables import check_version_name
 from sianms_cli.reporting.ego_motion import COMMAND_LATERAL_M, TURN_DEGREES, ego_motion
 from sianms_cli.reporting.image_boxes import annotation_image_boxes
 from sianms_cli.reporting.nuscenes_reference import REFERENCE, reference_json
+from sianms_cli.synth.marker import read_marker
 
 CAR = "vehicle.car"
 HUMAN_PREFIX = "human."  # the devkit#457 "humans": every human.* category
@@ -98,6 +99,7 @@ def summarize(db: NuScenesDB, max_sweeps: int = 200, progress: Progress = SILENT
     return {
         "dataroot": str(db.dataroot),
         "version": db.version,
+        "synth_marker": read_marker(db.dataroot),  # None for a dataset sianms synth did not write
         "scenes": len(db.table("scene")),
         "scene_conditions": condition_counts(db.table("scene").column("description").tolist()),
         "samples": n_samples,
@@ -409,6 +411,7 @@ def format_summary(summary: dict) -> str:
     """The summary as an aligned text report: each figure as "ours | nuScenes value (source)"."""
     lines = [
         f"{summary['dataroot']}  {summary['version']}",
+        *_synth_marker_lines(summary["synth_marker"]),
         f"  scenes {summary['scenes']}, samples {summary['samples']}, sample_data {summary['sample_data']}, "
         f"instances {summary['instances']}, annotations {summary['annotations']}",
         *_condition_lines(summary["scene_conditions"], summary["scenes"]),
@@ -462,6 +465,19 @@ def format_summary(summary: dict) -> str:
     lines += _angle_lines(summary["car_azimuth_within_50m"], summary["car_heading_to_axis_within_50m"])
     lines += _ego_lines(summary["ego_motion"])
     return "\n".join(lines)
+
+
+def _synth_marker_lines(marker: dict | None) -> list[str]:
+    """Who wrote a synthetic dataroot, with which seed, on which platform (same seed, other
+    platform: other bytes)."""
+    if marker is None:
+        return []
+    config = marker.get("config") if isinstance(marker.get("config"), dict) else {}
+    recorded = marker.get("platform")
+    where = ("platform not recorded" if not isinstance(recorded, dict) else
+             f"on {recorded.get('cpu_vendor')} {recorded.get('vector_width')}, numpy {recorded.get('numpy')}, "
+             f"numba {recorded.get('numba')}")
+    return [f"  written by sianms synth {marker.get('sianms_version')} (seed {config.get('seed')}), {where}"]
 
 
 def _condition_lines(conditions: dict, scenes: int) -> list[str]:

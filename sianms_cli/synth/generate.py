@@ -49,7 +49,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from sianms_cli import __version__, io
-from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_seed, check_workers
+from sianms_cli.errors import OutputExistsError, SianmsError, check_seed, check_workers
 from sianms_cli.geometry.quaternion import matrix_to_quat, yaw_to_quat
 from sianms_cli.geometry.transforms import make_transform
 from sianms_cli.nuscenes.splits import splits_for_version
@@ -65,6 +65,7 @@ from sianms_cli.synth.clutter import clutter_parts, road_user_boxes
 from sianms_cli.synth.conditions import Conditions, civil_dusk_hour, sample_conditions
 from sianms_cli.synth.devkit_count import boxes_in_sensor_frame, count_points_in_boxes
 from sianms_cli.synth.lidar import scan_lidar, spray_behind
+from sianms_cli.synth.marker import MARKER_KIND, MARKER_NAME, read_marker
 from sianms_cli.synth.rig import (
     CAMERA_TRIGGER_OFFSET_US,
     FULL_IMAGE_SIZE,
@@ -90,8 +91,6 @@ from sianms_cli.synth.world import (
     plan_scene,
 )
 
-MARKER_NAME = "sianms-synth.json"  # provenance marker at the dataroot's top
-MARKER_KIND = "sianms synth dataroot"
 DATAROOT_FOLDERS = ("samples", "sweeps", "maps")  # a dataroot's data folders
 VERSION_FILES = frozenset({*(f"{name}.json" for name in TABLE_NAMES), "splits.json"})  # what synth writes there
 
@@ -259,7 +258,7 @@ def _check_output(out: Path, *, overwrite: bool) -> None:
     if not overwrite:
         raise OutputExistsError(f"{out}: exists and is not empty; pass --overwrite to replace an earlier "
                                 "sianms synth output")
-    version = _marked_version(out / MARKER_NAME)
+    version = _marked_version(out)
     if version is None:
         raise OutputExistsError(f"{out}: not replaced: it has no valid {MARKER_NAME}, so it is not an earlier "
                                 f"sianms synth output (it holds '{entries[0].name}'); remove it yourself or "
@@ -271,15 +270,10 @@ def _check_output(out: Path, *, overwrite: bool) -> None:
                                     "synth writes; remove it yourself or choose another --out")
 
 
-def _marked_version(marker_path: Path) -> str | None:
+def _marked_version(dataroot: Path) -> str | None:
     """The version folder an earlier run's marker names; None when there is no valid marker."""
-    if marker_path.is_symlink() or not marker_path.is_file():
-        return None
-    try:
-        marker = io.read_json(marker_path)
-    except DataFormatError:
-        return None
-    config = marker.get("config") if isinstance(marker, dict) and marker.get("kind") == MARKER_KIND else None
+    marker = read_marker(dataroot)
+    config = marker.get("config") if marker is not None else None
     version = config.get("version") if isinstance(config, dict) else None
     return version if isinstance(version, str) else None
 

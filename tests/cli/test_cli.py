@@ -7,6 +7,8 @@ from typer.testing import CliRunner
 
 from sianms_cli import __version__
 from sianms_cli.cli import app
+from sianms_cli.provenance import numeric_platform
+from sianms_cli.reporting.dataset_summary import _synth_marker_lines
 
 runner = CliRunner()
 
@@ -66,6 +68,16 @@ def test_info_as_json_and_as_text(synthetic_dataroot, tmp_path):
     assert "LiDAR points per sweep: mean" in text
     assert "  image boxes (devkit 2-D export rule over 6 cameras):\n    per 3-D box: " in text
     assert " | nuScenes 1.215 (v1.0-trainval, 1,416,337 2-D from 1,166,187 3-D boxes" in text
+    here = numeric_platform()
+    assert summary["synth_marker"]["config"]["seed"] == 3 and summary["synth_marker"]["platform"] == here
+    assert (f"\n  written by sianms synth {__version__} (seed 3), on {here['cpu_vendor']} {here['vector_width']}, "
+            f"numpy {here['numpy']}, numba {here['numba']}\n") in text
+
+
+def test_info_says_who_wrote_a_synthetic_dataroot_and_nothing_for_another():
+    old = {"kind": "sianms synth dataroot", "sianms_version": "0.1.0", "config": {"seed": 7}}
+    assert _synth_marker_lines(old) == ["  written by sianms synth 0.1.0 (seed 7), platform not recorded"]
+    assert _synth_marker_lines(None) == []
 
 
 def test_info_writes_its_figures_to_out_once(synthetic_dataroot, tmp_path):

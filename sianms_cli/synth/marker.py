@@ -1,0 +1,25 @@
+"""The provenance marker at the top of a dataroot `sianms synth` wrote: what wrote it, with which
+config, on which numeric platform. Kept apart from the generator so that readers (`sianms info`)
+need not import the world."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from sianms_cli import io
+from sianms_cli.errors import DataFormatError
+
+MARKER_NAME = "sianms-synth.json"
+MARKER_KIND = "sianms synth dataroot"
+
+
+def read_marker(dataroot: str | Path) -> dict | None:
+    """The marker of ``dataroot``; None when it has no valid one (a real dataset, a damaged file)."""
+    path = Path(dataroot) / MARKER_NAME
+    if path.is_symlink() or not path.is_file():
+        return None
+    try:
+        marker = io.read_json(path)
+    except DataFormatError:
+        return None
+    return marker if isinstance(marker, dict) and marker.get("kind") == MARKER_KIND else None
