@@ -1,5 +1,5 @@
 """The CI gate's committed expectations, one per numeric platform (.ci/demo-quick-report.<CPU
-maker>.<torch CPU capability>.json, as .ci/platform names it): baselines `sianms report` reads,
+maker>.<vector width>.json, as .ci/platform names it): baselines `sianms report` reads,
 each of which passes against itself and fails on one planted regression."""
 
 import copy
