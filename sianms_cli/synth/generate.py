@@ -48,7 +48,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from sianms_cli import __version__, io
+from sianms_cli import io
 from sianms_cli.errors import OutputExistsError, SianmsError, check_seed, check_workers
 from sianms_cli.geometry.quaternion import matrix_to_quat, yaw_to_quat
 from sianms_cli.geometry.transforms import make_transform
@@ -57,7 +57,6 @@ from sianms_cli.nuscenes.tables import CAMERA_CHANNELS, SENSORS, TABLE_NAMES, ch
 from sianms_cli.nuscenes.sensors import write_jpeg, write_pcd_bin
 from sianms_cli.nuscenes.writer import DatasetWriter, attribute_token, category_token, make_token
 from sianms_cli.processes import worker_pool
-from sianms_cli.provenance import numeric_platform
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.synth.appearance import camera_style, sample_appearance
 from sianms_cli.synth.camera import CameraRender, CoverageCounts, coverage_counts, motion_blur_length, render_camera
@@ -65,7 +64,7 @@ from sianms_cli.synth.clutter import clutter_parts, road_user_boxes
 from sianms_cli.synth.conditions import Conditions, civil_dusk_hour, sample_conditions
 from sianms_cli.synth.devkit_count import boxes_in_sensor_frame, count_points_in_boxes
 from sianms_cli.synth.lidar import scan_lidar, spray_behind
-from sianms_cli.synth.marker import MARKER_KIND, MARKER_NAME, read_marker
+from sianms_cli.synth.marker import MARKER_NAME, make_marker, read_marker
 from sianms_cli.synth.rig import (
     CAMERA_TRIGGER_OFFSET_US,
     FULL_IMAGE_SIZE,
@@ -302,13 +301,6 @@ def _foreign_within(entry: Path, version: str) -> Path | None:
     return None
 
 
-def _marker(config: SynthConfig, names: list[str]) -> dict:
-    """The provenance marker: what wrote this dataroot, with which resolved config, on which platform."""
-    resolved = dataclasses.replace(config, scenes=len(names))
-    return {"kind": MARKER_KIND, "sianms_version": __version__, "config": dataclasses.asdict(resolved),
-            "platform": numeric_platform()}
-
-
 @contextmanager
 def _errors_name_files_under(out: Path, staging: Path) -> Iterator[None]:
     """Write errors name the file under ``out``, not under the staging folder.
@@ -338,7 +330,8 @@ def _write_dataset(staging: Path, config: SynthConfig, names: list[str], progres
             for records in scenes:
                 for table, record in records:
                     writer.add(table, record)
-    io.write_json(staging / MARKER_NAME, _marker(config, names))
+    resolved = dataclasses.replace(config, scenes=len(names))
+    io.write_json(staging / MARKER_NAME, make_marker(dataclasses.asdict(resolved)))
 
 
 def _sensed_scenes(jobs: list[tuple], workers: int, progress: Progress) -> Iterator[list[tuple[str, dict]]]:
