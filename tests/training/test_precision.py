@@ -20,7 +20,9 @@ from sianms_cli.training.siamese import SiameseConfig
 from sianms_cli.training.siamese import run as train_siamese
 
 CPU = torch.device("cpu")
-TINY_FPOINTNET = dict(num_points=64, num_object_points=32, batch_size=8, min_box_height=0, flip=False, shift=False,
+# 32 points (16 masked): on a CPU without native bfloat16 its matrix products are emulated, 7x slower
+# than float32's (an AVX2 EPYC: 0.70 s against 0.10 s for a step of 8 frustums of 64 points).
+TINY_FPOINTNET = dict(num_points=32, num_object_points=16, batch_size=8, min_box_height=0, flip=False, shift=False,
                       jitter=False, device="cpu", seed=1)
 TINY_SIAMESE = dict(dim=8, conv_channels=(8, 8), hidden=(16,), lr=1e-3, batch_size=4, device="cpu", seed=0)
 
@@ -153,8 +155,7 @@ def test_an_fp16_fpointnet_run_keeps_its_loss_scale_across_a_resume(tiny_caches,
     scaler's state is checked to travel in the checkpoint: the scale moved in the first epoch
     and the resumed run ends on the uninterrupted run's weights."""
     monkeypatch.setattr(fpointnet_training, "resolve_precision", lambda name, device: "fp16")
-    tiny = {**TINY_FPOINTNET, "num_points": 32, "num_object_points": 16, "cache": str(tiny_caches[0]),
-            "precision": "fp16"}
+    tiny = {**TINY_FPOINTNET, "cache": str(tiny_caches[0]), "precision": "fp16"}
     full = FPointNetConfig(epochs=2, **tiny)
     train_fpointnet(full, tmp_path / "straight")
     train_fpointnet(FPointNetConfig(epochs=1, **tiny), tmp_path / "stopped")
