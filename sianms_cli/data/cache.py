@@ -24,6 +24,7 @@ naming the file.
 
 from __future__ import annotations
 
+import hashlib
 import json
 from contextlib import contextmanager
 from pathlib import Path
@@ -247,6 +248,15 @@ def complete_manifest(cache: str | Path) -> dict[str, Any]:
         raise DataFormatError(path, f"the cache is not complete ({count} shards missing); rerun `sianms prepare` "
                                     "with the same flags to finish it", field="complete")
     return manifest
+
+
+
+def cache_fingerprint(manifest: dict[str, Any]) -> str:
+    """Hex SHA-256 of a cache's content as its manifest states it: the config (with the dataset's
+    fingerprint), the counts and every file's checksum, not the path of the dataroot it was
+    prepared from, so the same cache prepared or moved elsewhere keeps its fingerprint."""
+    content = {key: value for key, value in manifest.items() if key != "dataroot"}
+    return hashlib.sha256(json.dumps(content, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
 @contextmanager

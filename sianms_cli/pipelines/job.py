@@ -35,11 +35,11 @@ from typing import Any, Iterator
 
 import pyarrow.parquet as pq
 
-from sianms_cli.data.cache import complete_manifest
+from sianms_cli.data.cache import cache_fingerprint, complete_manifest
 from sianms_cli.detection2d.classes import check_classes
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_seed, check_workers
 from sianms_cli.geometry.bev import AXIS_MODES
-from sianms_cli.io import (atomic_file, exclusive_lock, make_folder, partial_of, read_json, release_lock, sha256_of,
+from sianms_cli.io import (atomic_file, exclusive_lock, make_folder, partial_of, read_json, release_lock,
                            try_lock, write_json)
 from sianms_cli.nuscenes.fingerprint import dataset_fingerprint
 from sianms_cli.nuscenes.loader import NuScenesDB
@@ -163,19 +163,22 @@ FINISH_FIELDS = ("methods", "nms_sweep", "axis_mode", "pictures")  # decide only
 
 
 def resolved_config(config: EvalConfig, db: NuScenesDB, scenes: list[str], dis_thr: float) -> dict[str, Any]:
-    """The config as eval.json records it: inputs by content (dataset, cache, checkpoints).
+    """The config as eval.json records it: inputs by content (dataset, cache, checkpoints), so the
+    same inputs in other folders give the same config.
 
     The fields of :data:`FINISH_FIELDS` do not change the scenes' boxes tables, so an
     ``--overwrite`` that changes only them keeps the scenes and redoes the finish stage.
     """
+    from sianms_cli.training.run import checkpoint_fingerprint, load_checkpoint
+
     data = asdict(config)
     for name in ("dataroot", "cache", "siamese", "fpointnet", "device"):
         del data[name]
     data.update(sianms_classes=list(config.sianms_classes), dis_thr=dis_thr, methods=list(config.method_names),
                 dataset_sha256=dataset_fingerprint(db.table_root), split_scenes=scenes,
-                cache_sha256=sha256_of(Path(config.cache) / "manifest.json"),
-                siamese_sha256=sha256_of(_run_file(config.siamese)),
-                fpointnet_sha256=sha256_of(_run_file(config.fpointnet)))
+                cache_sha256=cache_fingerprint(complete_manifest(config.cache)),
+                siamese_sha256=checkpoint_fingerprint(load_checkpoint(_run_file(config.siamese), "siamese")),
+                fpointnet_sha256=checkpoint_fingerprint(load_checkpoint(_run_file(config.fpointnet), "fpointnet")))
     return data
 
 

@@ -47,7 +47,9 @@ from __future__ import annotations
 
 import atexit
 import csv
+import hashlib
 import io
+import json
 import math
 import os
 import random
@@ -250,6 +252,42 @@ def load_checkpoint(path: str | Path, kind: str | None = None) -> Checkpoint:
         raise DataFormatError(path, f"a '{data['kind']}' checkpoint, expected '{kind}'", field="kind")
     del data["format"]
     return Checkpoint(**data)
+
+
+
+RECORDED_PATHS = ("cache", "val_cache", "dataroot")
+"""Config fields that say where a run's inputs lay: recorded for people, left out of its fingerprint."""
+
+
+def checkpoint_fingerprint(checkpoint: Checkpoint) -> str:
+    """Hex SHA-256 of what a checkpoint gives the stages that load it: its kind, config (without
+    the paths of :data:`RECORDED_PATHS`), epoch, weights and extra; not the optimizer or history.
+    The same training run in another folder, or on caches that moved, keeps its fingerprint."""
+    digest = hashlib.sha256()
+    config = {key: value for key, value in checkpoint.config.items() if key not in RECORDED_PATHS}
+    _digest_value(digest, {"kind": checkpoint.kind, "config": config, "epoch": checkpoint.epoch,
+                           "model": checkpoint.model, "extra": checkpoint.extra})
+    return digest.hexdigest()
+
+
+def _digest_value(digest: Any, value: Any) -> None:
+    """Feed a checkpoint's plain value (dicts, lists, tensors, JSON scalars) to ``digest``, tagged
+    so that no two values feed the same bytes."""
+    if isinstance(value, torch.Tensor):
+        flat = value.detach().cpu().reshape(-1).contiguous()
+        digest.update(f"tensor {flat.dtype} {tuple(value.shape)}\0".encode())
+        digest.update(flat.view(torch.uint8).numpy().tobytes())
+    elif isinstance(value, dict):
+        digest.update(f"dict {len(value)}\0".encode())
+        for key in sorted(value, key=str):
+            digest.update(f"{key!s}\0".encode())
+            _digest_value(digest, value[key])
+    elif isinstance(value, (list, tuple)):
+        digest.update(f"list {len(value)}\0".encode())
+        for item in value:
+            _digest_value(digest, item)
+    else:
+        digest.update(f"value {json.dumps(value, sort_keys=True)}\0".encode())
 
 
 def load_state(module: torch.nn.Module, state: dict[str, Any], path: str | Path) -> None:

@@ -8,7 +8,7 @@ import pyarrow as pa
 import pytest
 
 from sianms_cli.data.cache import (
-    ShardWriter, complete_manifest, read_dataset, read_shard_table, roi_feature_shape, shard_done, write_manifest,
+    ShardWriter, cache_fingerprint, complete_manifest, read_dataset, read_shard_table, roi_feature_shape, shard_done, write_manifest,
 )
 from sianms_cli.data.frustum_dataset import FrustumSelection, read_shard
 from sianms_cli.data.index import build_pair_index
@@ -111,3 +111,15 @@ def test_readers_refuse_a_folder_without_manifest_or_an_incomplete_cache(tmp_pat
                                 "(2 of 3 shards missing); rerun `sianms prepare` with the same flags to finish it")
     written = write_manifest(tmp_path, {"seed": 0}, ["s"], tmp_path)
     assert complete_manifest(tmp_path) == written
+
+
+def test_a_caches_fingerprint_is_its_content_not_the_dataroot_it_came_from():
+    manifest = {"schema_version": 1, "config": {"dataset_sha256": "d" * 64, "split": "mini_train"},
+                "dataroot": "/home/a/data", "complete": True, "counts": {"samples": 2},
+                "files": {"frustums/scene-1.parquet": {"rows": 3, "bytes": 10, "sha256": "a" * 64}}}
+    fingerprint = cache_fingerprint(manifest)
+    assert cache_fingerprint({**manifest, "dataroot": "/scratch/b/data"}) == fingerprint
+    assert cache_fingerprint(dict(reversed(list(manifest.items())))) == fingerprint
+    other_file = {"frustums/scene-1.parquet": {"rows": 3, "bytes": 10, "sha256": "b" * 64}}
+    assert cache_fingerprint({**manifest, "files": other_file}) != fingerprint
+    assert cache_fingerprint({**manifest, "config": {**manifest["config"], "dataset_sha256": "e" * 64}}) != fingerprint

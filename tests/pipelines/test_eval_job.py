@@ -2,6 +2,7 @@
 
 import json
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pyarrow as pa
@@ -17,6 +18,7 @@ from sianms_cli.pipelines.methods import METHODS
 from sianms_cli.progress import SILENT
 from sianms_cli.reporting.eval_table import format_cell
 from sianms_cli.reporting.report import SCHEMA as REPORT_SCHEMA, ReportConfig, run as run_report
+from sianms_cli.training.run import load_checkpoint, save_checkpoint
 
 
 def config_of(inputs, **fields):
@@ -112,6 +114,28 @@ def test_a_rerun_resumes_and_an_interrupted_run_resumes_to_the_same_bytes(eval_i
     for path in sorted((out / "scenes").glob("*.parquet")):  # equal but for the timings in the metadata
         assert pq.read_table(stopped / "scenes" / path.name).replace_schema_metadata(None).equals(
             pq.read_table(path).replace_schema_metadata(None)), path.name
+
+
+
+def test_the_same_inputs_moved_elsewhere_resume_the_evaluation(eval_inputs, evaluated, tmp_path):
+    """The cache prepared from a dataroot at another path and the runs trained on caches at
+    other paths are the same inputs: eval.json's config (their fingerprints) is unchanged, so
+    the finished evaluation is kept rather than refused as another one."""
+    moved = tmp_path / "moved"
+    shutil.copytree(eval_inputs.cache, moved / "cache")
+    manifest_path = moved / "cache" / "manifest.json"
+    manifest_path.write_text(json.dumps({**json.loads(manifest_path.read_text()), "dataroot": "/elsewhere/data"}))
+    for name in ("siamese", "fpointnet"):
+        shutil.copytree(getattr(eval_inputs, name), moved / name)
+        checkpoint = load_checkpoint(moved / name / "checkpoint.pt")
+        save_checkpoint(moved / name / "checkpoint.pt",
+                        replace(checkpoint, config={**checkpoint.config, "cache": str(moved / "cache")}))
+    out = tmp_path / "out"
+    shutil.copytree(evaluated[0], out)
+    run(config_of(eval_inputs, cache=str(moved / "cache"), siamese=str(moved / "siamese"),
+                  fpointnet=str(moved / "fpointnet"), nms_sweep="0.1"), out)
+    assert json.loads((out / "eval.json").read_text())["config"] == json.loads(
+        (evaluated[0] / "eval.json").read_text())["config"]
 
 
 def test_refusals_name_the_problem(eval_inputs, evaluated, tmp_path):

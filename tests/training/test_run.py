@@ -1,6 +1,7 @@
 """The shared run folder: checkpoints (weights-only, clear errors), refusing, resuming, metrics, seeds."""
 
 import pickle
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -9,8 +10,8 @@ import torch
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
 from sianms_cli.io import OutputError
 from sianms_cli.training.run import (
-    CHECKPOINT, CONFIG, CURVES, METRICS, Checkpoint, RunFolder, choose_device, epoch_generator, load_checkpoint,
-    load_state, metrics_csv, save_checkpoint, step_decay,
+    CHECKPOINT, CONFIG, CURVES, METRICS, Checkpoint, RunFolder, checkpoint_fingerprint, choose_device,
+    epoch_generator, load_checkpoint, load_state, metrics_csv, save_checkpoint, step_decay,
 )
 
 
@@ -23,6 +24,23 @@ def small_checkpoint(kind="siamese", epoch=2):
     return net, Checkpoint(kind=kind, config={"dim": 2, "widths": [1, 2], "cache": None}, epoch=epoch,
                            model=net.state_dict(), optimizer=optimizer.state_dict(),
                            history=[{"epoch": 1, "loss": 0.5}], extra={"dis_thr": 1.25})
+
+
+
+def test_a_checkpoints_fingerprint_is_its_weights_and_settings_not_where_its_inputs_lay(tmp_path):
+    _, checkpoint = small_checkpoint()
+    fingerprint = checkpoint_fingerprint(checkpoint)
+    save_checkpoint(tmp_path / CHECKPOINT, checkpoint)
+    assert checkpoint_fingerprint(load_checkpoint(tmp_path / CHECKPOINT)) == fingerprint
+    moved = {**checkpoint.config, "cache": "/elsewhere/cache", "val_cache": "/elsewhere/val", "dataroot": "/data"}
+    assert checkpoint_fingerprint(replace(checkpoint, config=moved, optimizer={}, history=[])) == fingerprint
+    weights = {key: value.clone() for key, value in checkpoint.model.items()}
+    weights["bias"][0] = torch.nextafter(weights["bias"][0], torch.tensor(1.0))
+    as_bf16 = {key: value.to(torch.bfloat16) for key, value in checkpoint.model.items()}
+    for changed in (replace(checkpoint, model=weights), replace(checkpoint, model=as_bf16),
+                    replace(checkpoint, config={**checkpoint.config, "dim": 3}), replace(checkpoint, epoch=3),
+                    replace(checkpoint, extra={"dis_thr": 1.5}), replace(checkpoint, kind="fpointnet")):
+        assert checkpoint_fingerprint(changed) != fingerprint
 
 
 def test_checkpoint_round_trip(tmp_path):
