@@ -250,7 +250,6 @@ def complete_manifest(cache: str | Path) -> dict[str, Any]:
     return manifest
 
 
-
 def cache_fingerprint(manifest: dict[str, Any]) -> str:
     """Hex SHA-256 of a cache's content as its manifest states it: the config (with the dataset's
     fingerprint), the counts and every file's checksum, not the path of the dataroot it was

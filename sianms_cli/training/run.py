@@ -254,7 +254,6 @@ def load_checkpoint(path: str | Path, kind: str | None = None) -> Checkpoint:
     return Checkpoint(**data)
 
 
-
 RECORDED_PATHS = ("cache", "val_cache", "dataroot")
 """Config fields that say where a run's inputs lay: recorded for people, left out of its fingerprint."""
 
@@ -271,8 +270,9 @@ def checkpoint_fingerprint(checkpoint: Checkpoint) -> str:
 
 
 def _digest_value(digest: Any, value: Any) -> None:
-    """Feed a checkpoint's plain value (dicts, lists, tensors, JSON scalars) to ``digest``, tagged
-    so that no two values feed the same bytes."""
+    """Feed a checkpoint's plain value (dicts, lists, tensors, JSON scalars) to ``digest``, each
+    part tagged with its type and size (a tensor's dtype and shape), so that a reshaped or recast
+    tensor, or a value moved between nesting levels, changes the fingerprint."""
     if isinstance(value, torch.Tensor):
         flat = value.detach().cpu().reshape(-1).contiguous()
         digest.update(f"tensor {flat.dtype} {tuple(value.shape)}\0".encode())
