@@ -20,7 +20,9 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from queue import Empty
 
+from sianms_cli.errors import SianmsError
 from sianms_cli.nuscenes.loader import NuScenesDB
 
 REPO = Path(__file__).resolve().parents[1]
@@ -36,7 +38,11 @@ print(time.perf_counter() - start)
 
 def _load_child(dataroot: str, version: str, queue) -> None:
     start, start_cpu = time.perf_counter(), time.process_time()
-    db = NuScenesDB(dataroot, version)
+    try:
+        db = NuScenesDB(dataroot, version)
+    except SianmsError as error:  # the parent says it: one line, exit 2
+        queue.put(str(error))
+        return
     seconds, cpu = time.perf_counter() - start, time.process_time() - start_cpu
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     sizes = ", ".join(f"{name} {len(db.table(name))}" for name in ("sample", "sample_data", "sample_annotation"))
@@ -49,8 +55,17 @@ def measure_load(dataroot: Path, version: str) -> tuple[float, float, float, str
     queue = context.Queue()
     process = context.Process(target=_load_child, args=(str(dataroot), version, queue))
     process.start()
-    result = queue.get()
+    while True:  # a child that dies without a word (killed, out of memory) must not leave us waiting
+        try:
+            result = queue.get(timeout=1.0)
+            break
+        except Empty:
+            if not process.is_alive():
+                raise SystemExit(f"error: the loading process died (exit code {process.exitcode})") from None
     process.join()
+    if isinstance(result, str):
+        print(f"error: {result}", file=sys.stderr)
+        raise SystemExit(2)
     return result
 
 

@@ -12,11 +12,13 @@ how many there are, the share whose two single-camera boxes overlap in bird's-ey
 from __future__ import annotations
 
 import argparse
-import json
+import sys
 from pathlib import Path
 
 import numpy as np
 
+from sianms_cli.errors import SianmsError
+from sianms_cli.io import describe_os_error, read_json
 from sianms_cli.pipelines.methods import SIANMS, AllBoxes, gate_passed, match_singles
 
 
@@ -44,8 +46,11 @@ def demo_boxes(folder: Path) -> AllBoxes:
     from sianms_cli.nuscenes.loader import NuScenesDB
     from sianms_cli.pipelines.finish import read_boxes
 
-    config = json.loads((folder / "eval" / "eval.json").read_text())["config"]
-    version = json.loads((folder / "demo.json").read_text())["config"]["version"]
+    demo, evaluation = read_json(folder / "demo.json"), read_json(folder / "eval" / "eval.json")
+    if not (isinstance(demo, dict) and demo.get("complete") and isinstance(evaluation, dict)
+            and evaluation.get("complete")):
+        raise SianmsError(f"{folder}: not a finished `sianms demo` (its demo.json and eval/eval.json say complete)")
+    config, version = evaluation["config"], demo["config"]["version"]
     split = eval_split(NuScenesDB(str(folder / "data"), version), config["split"])
     return read_boxes([folder / "eval" / "scenes" / f"{name}.parquet" for name in config["split_scenes"]],
                       list(split.sample_tokens))
@@ -55,11 +60,18 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("demos", nargs="+", type=Path, help="`sianms demo` output folders")
     for folder in parser.parse_args().demos:
-        for name, f in match_geometry(demo_boxes(folder)).items():
+        try:
+            figures = match_geometry(demo_boxes(folder))
+        except (SianmsError, OSError) as error:
+            print(f"error: {describe_os_error(error) if isinstance(error, OSError) else error}", file=sys.stderr)
+            raise SystemExit(2) from None
+        for name, f in figures.items():
             if f["count"]:
                 print(f"{folder.name}: {f['count']} {name} matches, single-camera boxes overlapping in BEV "
                       f"{100 * f['overlapping']:.0f} %, centres {f['median_m']:.2f} m apart (median; p10 "
                       f"{f['p10_m']:.2f}, p90 {f['p90_m']:.2f})")
+            else:
+                print(f"{folder.name}: 0 {name} matches")
 
 
 if __name__ == "__main__":

@@ -38,8 +38,9 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, NamedTuple
 
-from sianms_cli.errors import OutputExistsError, SianmsError, check_seed, check_workers
+from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_seed, check_workers
 from sianms_cli.io import make_folder, read_json, write_json
+from sianms_cli.json_stream import is_finite_number
 from sianms_cli.progress import SILENT, Progress
 
 MARKER = "demo.json"
@@ -245,6 +246,7 @@ def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> dict[s
         stored = read_json(marker)
         if not isinstance(stored, dict) or stored.get("kind") != KIND:
             raise OutputExistsError(f"{marker} is not a sianms demo's; choose another --out")
+        check_record(stored, marker)
         if stored.get("config") == resolved:
             return stored
         if not overwrite:
@@ -267,6 +269,21 @@ def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> dict[s
     record = {"kind": KIND, "config": resolved, "complete": False, "stages": {}}
     write_json(marker, record)
     return record
+
+
+def check_record(record: dict[str, Any], marker: Path) -> None:
+    """A demo.json read back holds a config object and, per stage, whether it is done and its
+    finite wall time: what a rerun trusts to skip a stage and to share out the time."""
+    for name in ("config", "stages"):
+        if not isinstance(record.get(name), dict):
+            raise DataFormatError(marker, f"must be an object, got {type(record.get(name)).__name__}", field=name)
+    for stage, state in record["stages"].items():
+        seconds = state.get("seconds") if isinstance(state, dict) else None
+        if not isinstance(state, dict) or not isinstance(state.get("done"), bool):
+            raise DataFormatError(marker, "must be an object with a true or false 'done'", field=f"stages.{stage}")
+        if not (is_finite_number(seconds) and seconds >= 0):
+            raise DataFormatError(marker, f"must be a number of seconds >= 0, got {seconds!r}",
+                                  field=f"stages.{stage}.seconds")
 
 
 def first_changed_stage(before: dict[str, Any], after: dict[str, Any]) -> int:

@@ -220,10 +220,11 @@ def write_texts_together(texts: dict[Path, str], *, overwrite: bool = False) -> 
 
 
 def check_writable_output(path: str | Path, *, overwrite: bool) -> Path:
-    """Refuse an output file that is a folder or a device, or that exists while ``overwrite`` is false."""
+    """Refuse an output file that is a folder or a device, or that exists while ``overwrite`` is
+    false (a link does, even one that leads nowhere: the write would replace it)."""
     path = Path(path)
     refuse_non_file(path)
-    if path.exists() and not overwrite:
+    if (path.exists() or path.is_symlink()) and not overwrite:
         raise OutputExistsError(f"{path} exists; pass --overwrite to replace it")
     return path
 

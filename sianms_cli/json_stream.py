@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import gc
 import json
+import math
 import mmap
 import re
 from contextlib import contextmanager
@@ -44,6 +45,17 @@ def json_kind(value: Any) -> str:
 def is_number(value: Any) -> bool:
     """Whether ``value`` is an int or a float, and not a bool (JSON ``true`` is no number)."""
     return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def is_finite_number(value: Any) -> bool:
+    """Whether ``value`` is a number (:func:`is_number`) that is finite as a float: not NaN,
+    not infinite (Python's json reads both) and not an integer past float's range."""
+    if not is_number(value):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
 
 
 def types_within(values: Iterable, allowed: tuple[type, ...]) -> bool:

@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 import sianms_cli.demo as demo
 from sianms_cli.cli import app
 from sianms_cli.demo import DemoConfig, run
-from sianms_cli.errors import OutputExistsError, SianmsError
+from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
 
 runner = CliRunner()
 TINY = replace(demo.QUICK, scene_seconds=1.0, siamese_epochs=1, fpointnet_epochs=1, num_points=64,
@@ -107,6 +107,21 @@ def test_a_folder_that_is_not_a_demo_is_never_touched(tmp_path):
     (tmp_path / "file").write_text("x")
     with pytest.raises(OutputExistsError, match="not a folder"):
         demo.claim_output(tmp_path / "file", DemoConfig().resolved(), overwrite=True)
+
+
+@pytest.mark.parametrize(("stages", "message"), [
+    ("x", "field 'stages': must be an object, got str"),
+    ({"eval": None}, "field 'stages.eval': must be an object with a true or false 'done'"),
+    ({"eval": {"done": True, "seconds": "abc"}}, "field 'stages.eval.seconds': must be a number of seconds >= 0, "
+                                                 "got 'abc'"),
+    ({"eval": {"done": True, "seconds": float("nan")}}, "field 'stages.eval.seconds': must be a number"),
+])
+def test_a_damaged_demo_record_is_named_with_its_field(tmp_path, stages, message):
+    out = tmp_path / "demo"
+    record = demo.claim_output(out, DemoConfig().resolved(), overwrite=False)
+    (out / "demo.json").write_text(json.dumps({**record, "stages": stages}))
+    with pytest.raises(DataFormatError, match=f"demo.json: {message}"):
+        demo.claim_output(out, DemoConfig().resolved(), overwrite=False)
 
 
 def test_profiles_and_overrides():

@@ -103,6 +103,10 @@ def test_check_writable_output_refuses_existing_file_without_overwrite(tmp_path)
     with pytest.raises(OutputExistsError, match="--overwrite"):
         io.check_writable_output(path, overwrite=False)
     assert io.check_writable_output(path, overwrite=True) == path
+    dangling = tmp_path / "link.json"
+    dangling.symlink_to(tmp_path / "nowhere.json")
+    with pytest.raises(OutputExistsError, match="link.json exists; pass --overwrite"):
+        io.check_writable_output(dangling, overwrite=False)
 
 
 def test_a_device_or_pipe_is_never_replaced(tmp_path):

@@ -30,3 +30,16 @@ def test_right_and_wrong_matches_by_overlap_and_centre_distance():
     assert figures["right"]["count"] == 2 and figures["right"]["overlapping"] == 0.5
     assert figures["right"]["median_m"] == pytest.approx((0.6 + 5.0) / 2)
     assert figures["wrong"] == {"count": 1, "overlapping": 0.0, "median_m": 6.0, "p10_m": 6.0, "p90_m": 6.0}
+
+
+def test_a_folder_that_is_not_a_finished_demo_is_one_error_line(tmp_path):
+    import subprocess
+
+    result = subprocess.run([sys.executable, str(SCRIPT), str(tmp_path)], capture_output=True, text=True)
+    assert (result.returncode, result.stdout) == (2, "")
+    assert result.stderr == f"error: {tmp_path / 'demo.json'}: file not found\n"
+    (tmp_path / "demo.json").write_text('{"complete": false}')
+    (tmp_path / "eval").mkdir()
+    (tmp_path / "eval" / "eval.json").write_text('{"complete": false}')
+    result = subprocess.run([sys.executable, str(SCRIPT), str(tmp_path)], capture_output=True, text=True)
+    assert result.returncode == 2 and result.stderr.startswith(f"error: {tmp_path}: not a finished `sianms demo`")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import os
+import re
 import signal
 from typing import Callable
 
@@ -114,13 +115,26 @@ def exit_code_after_signals(code: int) -> int:
     return 128 + signum
 
 
+def is_out_of_memory(error: BaseException) -> bool:
+    """Python's MemoryError, torch's CPU allocator refusing (a RuntimeError it names by its
+    message only) or torch.OutOfMemoryError (CUDA), told apart without importing torch."""
+    return (isinstance(error, MemoryError) or type(error).__name__ == "OutOfMemoryError"
+            or "can't allocate memory" in str(error))
+
+
+def describe_out_of_memory(error: BaseException) -> str:
+    """``out of memory (<what was asked>)``: the allocation, not the allocator's source line."""
+    asked = re.search(r"(?:you tried to allocate|Tried to allocate) [^.(]+", str(error))
+    return f"out of memory ({asked.group(0).strip()})" if asked else "out of memory"
+
+
 def command(name: str, group: typer.Typer | None = None) -> Callable[[Callable], Callable]:
     """Register a subcommand (of ``group``, default the root) whose failures end in one
     ``error:`` line, never a traceback.
 
     A user error or an OS error (read-only folder, disk full, a folder where a file should
-    be) exits with code 2; an interrupt with 130 (SIGINT) or 143 (SIGTERM), after the
-    library's cleanup has run. Under torchrun every rank stops with the same code, but only
+    be) exits with code 2; running out of memory with 1 (as a worker killed for it); an
+    interrupt with 130 (SIGINT) or 143 (SIGTERM), after the library's cleanup has run. Under torchrun every rank stops with the same code, but only
     rank 0 says it was interrupted (torchrun signals them all at once), and another rank's
     error line names its rank (it may be its own: a shard only it reads).
     """
@@ -138,6 +152,11 @@ def command(name: str, group: typer.Typer | None = None) -> Callable[[Callable],
             except OSError as error:
                 typer.echo(f"{prefix}{describe_os_error(error)}", err=True)
                 raise typer.Exit(2) from None
+            except (MemoryError, RuntimeError) as error:
+                if not is_out_of_memory(error):
+                    raise
+                typer.echo(f"{prefix}{describe_out_of_memory(error)}", err=True)
+                raise typer.Exit(1) from None
             except KeyboardInterrupt as interrupt:
                 terminated = isinstance(interrupt, Terminated)
                 say_interrupted(terminated)

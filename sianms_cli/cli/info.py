@@ -9,6 +9,7 @@ from typing import Optional
 import typer
 
 from sianms_cli.cli._app import ProgressBar, command
+from sianms_cli.errors import SianmsError
 
 
 @command("info")
@@ -39,6 +40,8 @@ def info_cli(
     from sianms_cli.reporting.dataset_summary import InfoConfig, format_summary, run
 
     if contact_sheet is not None:
+        if out is not None and contact_sheet.resolve() == Path(out).resolve():
+            raise SianmsError(f"--contact-sheet: {contact_sheet} is also --out; give each its own file")
         check_writable_output(contact_sheet, overwrite=overwrite)
     config = InfoConfig(dataroot=str(dataroot), version=version, max_sweeps=max_sweeps)
     with ProgressBar(quiet) as bar:

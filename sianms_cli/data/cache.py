@@ -238,6 +238,8 @@ def complete_manifest(cache: str | Path) -> dict[str, Any]:
     would silently use part of the data.
     """
     path = Path(cache) / MANIFEST
+    if Path(cache).is_file():
+        raise DataFormatError(cache, "is a file: a cache is the folder `sianms prepare` wrote")
     manifest = read_manifest(Path(cache))
     if manifest is None:
         raise DataFormatError(path, "not found: not a `sianms prepare` cache (run `sianms prepare` first)")

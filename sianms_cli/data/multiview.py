@@ -294,7 +294,9 @@ def build_union_shards(cache: str | Path, folder: str | Path, selection: Frustum
     """Write ``folder/<shard>.parquet``, the union frustums of each cache shard (module docstring).
 
     A shard whose file already holds this key is not recomputed (a resumed run). The dataroot
-    is opened only when a shard needs computing, and must be the cache's dataset.
+    must be the cache's dataset (its tables' fingerprint), checked even when every shard is
+    reused, so a resume cannot record another one; its tables are loaded only when a shard
+    needs computing.
 
     Returns:
         {shard file name: union frustums in its file}, in shard order.
@@ -302,6 +304,12 @@ def build_union_shards(cache: str | Path, folder: str | Path, selection: Frustum
     from sianms_cli.nuscenes.fingerprint import dataset_fingerprint
     from sianms_cli.nuscenes.loader import NuScenesDB
 
+    table_root = Path(settings.dataroot) / settings.version
+    if not table_root.is_dir():
+        raise DataFormatError(table_root, "version folder not found (expected <dataroot>/<version>/)")
+    if dataset_fingerprint(table_root) != settings.dataset_sha256:
+        raise SianmsError(f"--dataroot {settings.dataroot}: not the dataset the cache {cache} was "
+                          "prepared from (its tables' fingerprint differs)")
     folder = Path(folder)
     paths = frustum_shards(cache)
     records = shard_records(Path(cache))
@@ -314,9 +322,6 @@ def build_union_shards(cache: str | Path, folder: str | Path, selection: Frustum
         if stored_key(target) != key:
             if db is None:
                 db = NuScenesDB(settings.dataroot, settings.version)
-                if dataset_fingerprint(db.table_root) != settings.dataset_sha256:
-                    raise SianmsError(f"--dataroot {settings.dataroot}: not the dataset the cache {cache} was "
-                                      "prepared from (its tables' fingerprint differs)")
             table = union_frustums(db, cache, path.stem, selection, settings)
             table = table.replace_schema_metadata({**(table.schema.metadata or {}), KEY_FIELD: key.encode()})
             with atomic_file(target) as stream:

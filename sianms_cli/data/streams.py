@@ -79,13 +79,18 @@ def rank_epoch_streams(paths: Sequence[Path], rng: np.random.Generator,
             for s in rank_streams(streams, rank, world)]
 
 
+def check_stream_count(streams: int | None) -> None:
+    """Refuse a ``--streams`` below 1 (None: one per process, decided when the ranks are known)."""
+    if streams is not None and streams < 1:
+        raise SianmsError(f"--streams must be at least 1, got {streams}")
+
+
 def check_streams(streams: int, world: int, batch_size: int, smallest: int) -> None:
     """Refuse stream counts that the ranks cannot share or whose batches would be too small.
 
     ``smallest``: the fewest rows a stream's batch may have (2 where batch norm sees it).
     """
-    if streams < 1:
-        raise SianmsError(f"--streams must be at least 1, got {streams}")
+    check_stream_count(streams)
     if streams % world:
         raise SianmsError(f"--streams {streams} is not a multiple of the {world} processes: each runs the same "
                           "number of streams")

@@ -154,8 +154,9 @@ class DetectionConfig:
         if not is_number(merged["dist_th_tp"]) or merged["dist_th_tp"] not in dist_ths:
             fail("dist_th_tp", f"must be one of dist_ths {dist_ths!r}, got {merged['dist_th_tp']!r}")
         min_recall, min_precision = merged["min_recall"], merged["min_precision"]
-        if not is_number(min_recall) or not 0 <= min_recall <= 1:
-            fail("min_recall", f"must be a number in [0, 1], got {min_recall!r}")
+        if not is_number(min_recall) or not 0 <= min_recall or round(100 * min_recall) > 99:
+            # AP averages the precision at the 1 %-recall points above it: past 0.99 none is left
+            fail("min_recall", f"must be a number in [0, 0.99], got {min_recall!r}")
         if not is_number(min_precision) or not 0 <= min_precision < 1:
             fail("min_precision", f"must be a number in [0, 1), got {min_precision!r}")
         max_boxes = merged["max_boxes_per_sample"]

@@ -59,11 +59,14 @@ def eval_split(db: NuScenesDB, split: str) -> EvalSplit:
     """The split's samples in sample-table order (the devkit's ``get_samples_of_scenes``).
 
     Raises SianmsError for a predefined split that does not fit the version or a split with
-    no sample in this dataset, DataFormatError for a missing or malformed splits.json.
+    no sample in this dataset, DataFormatError for a missing or malformed splits.json or a
+    split scene whose sample chain is broken (:meth:`NuScenesDB.sample_tokens_of_scene`).
     """
     names = set(split_scene_names(split, db.version, db.dataroot))
     scenes = db.table("scene")
     in_split = np.array([name in names for name in scenes.column("name").tolist()], dtype=bool)
+    for scene in scenes.tokens[in_split].tolist():  # a sample.json fault is blamed on sample.json, not the results
+        db.sample_tokens_of_scene(scene)
     samples = db.table("sample")
     rows = np.flatnonzero(in_split[samples.rows("scene_token")]) if len(samples) else np.zeros(0, np.int64)
     if len(rows) == 0 and split not in PREDEFINED_SPLITS:

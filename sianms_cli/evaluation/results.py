@@ -225,7 +225,8 @@ def read_results(path: str | Path, *, max_boxes_per_sample: int = MAX_BOXES_PER_
     if path.is_dir():
         raise DataFormatError(path, "is a folder, not a results file")
     if not path.is_file():
-        raise DataFormatError(path, "results file not found")
+        raise DataFormatError(path, "not a regular file, not a results file" if path.exists() else
+                              "results file not found")
     if path.stat().st_size >= SCAN_MIN_BYTES:
         counted = _CountedProgress(progress)
         scanned = _read_scanned(path, max_boxes_per_sample, counted)

@@ -530,7 +530,8 @@ class NuScenesDB:
         missing = [name for name in TABLE_NAMES if not paths[name].is_file()]
         if missing:
             others = f" (also missing: {', '.join(missing[1:])})" if missing[1:] else ""
-            raise DataFormatError(paths[missing[0]], f"table file not found{others}")
+            what = "is a folder, not a table file" if paths[missing[0]].is_dir() else "table file not found"
+            raise DataFormatError(paths[missing[0]], f"{what}{others}")
         parsed: dict[str, _ParsedTable] = {}
         for name in TABLE_NAMES:
             table = _ParsedTable(name, paths[name], parsed)
@@ -641,8 +642,9 @@ class NuScenesDB:
     def sample_tokens_of_scene(self, scene_token: str) -> list[str]:
         """The scene's sample tokens in time order, walking first_sample_token and next.
 
-        A chain that leaves the scene, loops, stops before ``last_sample_token``, or whose
-        length differs from ``nbr_samples`` raises DataFormatError naming the record and field.
+        A chain that leaves the scene, loops, stops before ``last_sample_token`` or goes on after
+        it, or whose length differs from ``nbr_samples`` raises DataFormatError naming the record
+        and field.
         """
         scenes = self.table("scene")
         samples = self.table("sample")
@@ -678,6 +680,9 @@ class NuScenesDB:
             row = following
             chain_rows.append(row)
             seen.add(row)
+        if next_rows[last] >= 0:
+            raise DataFormatError(samples.path, f"the last sample of scene {scene_token} has a next sample, "
+                                  f"{samples.tokens[next_rows[last]]}", token=str(samples.tokens[last]), field="next")
         expected = int(scenes.column("nbr_samples")[scene_row])
         if len(chain_rows) != expected:
             raise DataFormatError(

@@ -47,6 +47,12 @@ def sample_rigs(db: NuScenesDB, sample_tokens: Sequence[str]) -> tuple[list[Came
             row = cameras[np.flatnonzero(sizes <= 0)[0]]
             raise DataFormatError(sample_data.path, f"a camera key frame needs a positive image {field}, "
                                   f"got {sizes[sizes <= 0][0]}", token=str(sample_data.tokens[row]), field=field)
+    calibrated = db.table("calibrated_sensor")
+    without = np.isnan(calibrated.column("camera_intrinsic")[calibrations]).any(axis=(1, 2))
+    if without.any():
+        row = calibrations[np.flatnonzero(without)[0]]
+        raise DataFormatError(calibrated.path, "a camera's calibration needs its intrinsic matrix, got []",
+                              token=str(calibrated.tokens[row]), field="camera_intrinsic")
 
     first = np.searchsorted(owners, sample_rows, side="left")
     stop = np.searchsorted(owners, sample_rows, side="right")

@@ -11,12 +11,12 @@ loader ignores it (and any other field outside the schema) and the writer never 
 
 from __future__ import annotations
 
-import math
 import re
 from dataclasses import dataclass
 from typing import NamedTuple
 
 from sianms_cli.errors import SianmsError
+from sianms_cli.json_stream import is_finite_number
 
 TABLE_NAMES: tuple[str, ...] = (
     "category",
@@ -181,18 +181,6 @@ _INT64_MIN = -(2**63)
 _INT64_MAX = 2**63 - 1
 
 
-def _is_finite_number(value: object) -> bool:
-    if type(value) is float:
-        return math.isfinite(value)
-    if type(value) is int:
-        try:
-            float(value)
-        except OverflowError:
-            return False
-        return True
-    return False
-
-
 def _describe(value: object) -> str:
     text = repr(value)
     if len(text) > 60:
@@ -207,7 +195,8 @@ def _expectation(field: Field) -> str:
         "int": "an integer",
         "bool": "true or false",
         "vector": f"a list of {field.length} finite numbers",
-        "intrinsic": "a 3x3 list of finite numbers, or []",
+        "intrinsic": "[] or a 3x3 pinhole matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]] of finite numbers, "
+                     "fx and fy > 0",
         "ref": f"a {field.table} token",
         "optional_ref": f'a {field.table} token or ""',
         "ref_list": f"a list of {field.table} tokens",
@@ -228,7 +217,7 @@ def _is_valid(field: Field, value: object) -> bool:
         return (
             type(value) is list
             and len(value) == field.length
-            and all(_is_finite_number(v) for v in value)
+            and all(is_finite_number(v) for v in value)
         )
     if kind == "intrinsic":
         return type(value) is list and (
@@ -236,11 +225,18 @@ def _is_valid(field: Field, value: object) -> bool:
             or (
                 len(value) == 3
                 and all(type(row) is list and len(row) == 3 for row in value)
-                and all(_is_finite_number(v) for row in value for v in row)
+                and all(is_finite_number(v) for row in value for v in row)
+                and _is_pinhole(value)
             )
         )
     assert kind == "ref_list", kind
     return type(value) is list and all(isinstance(v, str) and v != "" for v in value)
+
+
+def _is_pinhole(matrix: list[list[float]]) -> bool:
+    """[[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0: a camera matrix rays can be cast from."""
+    (fx, _, _), (below_fx, fy, _), last = matrix
+    return fx > 0 and fy > 0 and below_fx == 0 and last == [0, 0, 1]
 
 
 def check_value(field: Field, value: object) -> str | None:

@@ -19,7 +19,7 @@ from __future__ import annotations
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
@@ -27,6 +27,9 @@ from sianms_cli.data.frustum_dataset import INTENSITY_SCALE
 from sianms_cli.errors import DataFormatError
 from sianms_cli.geometry.frustum import rotate_from_frustum
 from sianms_cli.geometry.quaternion import yaw_to_quat
+
+if TYPE_CHECKING:
+    from sianms_cli.training.run import Checkpoint
 
 BATCH = 64  # frustums per forward pass: memory stays small at 1,024 points
 MIN_EXTENT = 0.01  # metres: an extent the network predicts <= 0 is clamped here, so the devkit accepts the box
@@ -63,14 +66,13 @@ class FPointNetPredictor:
         drops smaller detections before F-PointNets).
     """
 
-    def __init__(self, run: str | Path, device: str = "cpu") -> None:
+    def __init__(self, checkpoint: Checkpoint, path: Path, device: str = "cpu") -> None:
+        """The model of a ``fpointnet`` checkpoint read from ``path`` (named in errors)."""
         import torch
 
         from sianms_cli.models.fpointnet import FPointNetV1
-        from sianms_cli.training.run import load_checkpoint, load_state
+        from sianms_cli.training.run import load_state
 
-        path = Path(run) / "checkpoint.pt" if Path(run).is_dir() else Path(run)
-        checkpoint = load_checkpoint(path, kind="fpointnet")
         config, extra = checkpoint.config, checkpoint.extra
         for key in ("classes", "mean_sizes"):
             if key not in extra:

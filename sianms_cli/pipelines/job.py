@@ -31,7 +31,7 @@ import time
 from contextlib import closing
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import TYPE_CHECKING, Any, Iterator
 
 import pyarrow.parquet as pq
 
@@ -44,12 +44,16 @@ from sianms_cli.io import (atomic_file, exclusive_lock, make_folder, partial_of,
 from sianms_cli.nuscenes.fingerprint import dataset_fingerprint
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.pipelines.finish import finish
+from sianms_cli.pipelines.inference import FPointNetPredictor
 from sianms_cli.pipelines.methods import IOU_METHODS, METHODS, parse_methods, parse_thresholds
 from sianms_cli.pipelines.scene import SceneEvaluator, SceneSettings
 from sianms_cli.prepare.job import parse_shard, split_scenes
 from sianms_cli.processes import TASK_TORCH_THREADS, task_torch_threads, worker_pool
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.reporting.report import DEFAULT_FOLDER as REPORT_FOLDER, foreign_entry, is_report_folder
+
+if TYPE_CHECKING:
+    from sianms_cli.models.siamese import SiameseEncoder
 
 MARKER = "eval.json"
 SCENES = "scenes"
@@ -147,38 +151,54 @@ def _run_file(run: str) -> Path:
     return path / "checkpoint.pt" if path.is_dir() else path
 
 
-def load_models(config: EvalConfig):
-    """(F-PointNets predictor, siamese encoder, dis_thr): the trained runs, loaded once."""
-    from sianms_cli.pipelines.inference import FPointNetPredictor
-    from sianms_cli.training.run import choose_device
-    from sianms_cli.training.siamese import load_encoder
+@dataclass(frozen=True, eq=False)
+class Models:
+    """The trained runs, each checkpoint read once.
+
+    Attributes:
+        predictor: Frustum PointNets; encoder: the siamese encoder; dis_thr: the matching
+        threshold (``--dis-thr`` or the siamese run's); siamese_sha256, fpointnet_sha256: the
+        checkpoints' fingerprints of content (:func:`~sianms_cli.training.run.checkpoint_fingerprint`).
+    """
+
+    predictor: FPointNetPredictor
+    encoder: SiameseEncoder
+    dis_thr: float
+    siamese_sha256: str
+    fpointnet_sha256: str
+
+
+def load_models(config: EvalConfig) -> Models:
+    """The trained runs of ``config`` on its device (checked first), each checkpoint read once."""
+    from sianms_cli.training.run import checkpoint_fingerprint, choose_device, load_checkpoint
+    from sianms_cli.training.siamese import encoder_from_checkpoint
 
     device = str(choose_device(config.device))
-    predictor = FPointNetPredictor(config.fpointnet, device)
-    encoder, dis_thr = load_encoder(config.siamese, device)
-    return predictor, encoder, float(config.dis_thr if config.dis_thr is not None else dis_thr)
+    siamese_path, fpointnet_path = _run_file(config.siamese), _run_file(config.fpointnet)
+    siamese, fpointnet = load_checkpoint(siamese_path, "siamese"), load_checkpoint(fpointnet_path, "fpointnet")
+    encoder, dis_thr = encoder_from_checkpoint(siamese, siamese_path, device)
+    return Models(predictor=FPointNetPredictor(fpointnet, fpointnet_path, device), encoder=encoder,
+                  dis_thr=float(config.dis_thr if config.dis_thr is not None else dis_thr),
+                  siamese_sha256=checkpoint_fingerprint(siamese), fpointnet_sha256=checkpoint_fingerprint(fpointnet))
 
 
 FINISH_FIELDS = ("methods", "nms_sweep", "axis_mode", "pictures")  # decide only which boxes each method reports
 
 
-def resolved_config(config: EvalConfig, db: NuScenesDB, scenes: list[str], dis_thr: float) -> dict[str, Any]:
+def resolved_config(config: EvalConfig, db: NuScenesDB, scenes: list[str], models: Models) -> dict[str, Any]:
     """The config as eval.json records it: inputs by content (dataset, cache, checkpoints), so the
     same inputs in other folders give the same config.
 
     The fields of :data:`FINISH_FIELDS` do not change the scenes' boxes tables, so an
     ``--overwrite`` that changes only them keeps the scenes and redoes the finish stage.
     """
-    from sianms_cli.training.run import checkpoint_fingerprint, load_checkpoint
-
     data = asdict(config)
     for name in ("dataroot", "cache", "siamese", "fpointnet", "device"):
         del data[name]
-    data.update(sianms_classes=list(config.sianms_classes), dis_thr=dis_thr, methods=list(config.method_names),
+    data.update(sianms_classes=list(config.sianms_classes), dis_thr=models.dis_thr, methods=list(config.method_names),
                 dataset_sha256=dataset_fingerprint(db.table_root), split_scenes=scenes,
                 cache_sha256=cache_fingerprint(complete_manifest(config.cache)),
-                siamese_sha256=checkpoint_fingerprint(load_checkpoint(_run_file(config.siamese), "siamese")),
-                fpointnet_sha256=checkpoint_fingerprint(load_checkpoint(_run_file(config.fpointnet), "fpointnet")))
+                siamese_sha256=models.siamese_sha256, fpointnet_sha256=models.fpointnet_sha256)
     return data
 
 
@@ -298,9 +318,9 @@ def _init_worker(config: EvalConfig, settings: SceneSettings, out: str) -> None:
     import torch
 
     torch.set_num_threads(TASK_TORCH_THREADS)
-    predictor, encoder, _ = load_models(config)
+    models = load_models(config)
     db = NuScenesDB(config.dataroot, config.version)
-    _WORKER = (SceneEvaluator(db, predictor, encoder, settings), Path(config.cache), Path(out))
+    _WORKER = (SceneEvaluator(db, models.predictor, models.encoder, settings), Path(config.cache), Path(out))
 
 
 def _run_in_worker(args: tuple[str, str]) -> tuple[str, str]:
@@ -348,9 +368,9 @@ def run(config: EvalConfig, out: str | Path, *, overwrite: bool = False, progres
     names = [name for _, name in scenes]
     cache = Path(config.cache)
     cache_config = cache_settings(cache, db, config.split, names)
-    predictor, encoder, dis_thr = load_models(config)
-    resolved = resolved_config(config, db, names, dis_thr)
-    settings = scene_settings(config, cache_config, dis_thr)
+    models = load_models(config)
+    resolved = resolved_config(config, db, names, models)
+    settings = scene_settings(config, cache_config, models.dis_thr)
     with exclusive_lock(out / LOCK, what=str(out), blocking=True):
         if claim_output(out, resolved, overwrite):
             return EvalResult(out, read_json(out / MARKER), scenes_skipped=names, table=read_json(out / "table.json"))
@@ -358,7 +378,7 @@ def run(config: EvalConfig, out: str | Path, *, overwrite: bool = False, progres
     result = EvalResult(out, {})
     todo = [(token, name) for token, name in mine if not scene_path(out, name).is_file()]
     result.scenes_skipped = [name for _, name in mine if scene_path(out, name).is_file()]
-    evaluator = SceneEvaluator(db, predictor, encoder, settings)
+    evaluator = SceneEvaluator(db, models.predictor, models.encoder, settings)
     progress.start(len(todo), "scene", "eval")
     outcomes = {"written": result.scenes_run, "finished": result.scenes_skipped, "busy": result.scenes_busy}
     try:

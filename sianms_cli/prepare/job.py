@@ -17,7 +17,6 @@ was interrupted and resumed.
 
 from __future__ import annotations
 
-import shutil
 from contextlib import closing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,7 +30,7 @@ from sianms_cli.data.cache import (
 )
 from sianms_cli.data.schemas import DATASETS
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_workers
-from sianms_cli.io import PARTIAL_SUFFIX, FolderBusyError, exclusive_lock, release_lock, try_lock
+from sianms_cli.io import PARTIAL_SUFFIX, FolderBusyError, exclusive_lock, partial_of, release_lock, try_lock
 from sianms_cli.nuscenes.fingerprint import dataset_fingerprint
 from sianms_cli.nuscenes.tables import CAMERA_CHANNELS
 from sianms_cli.processes import TASK_TORCH_THREADS, task_torch_threads, worker_pool
@@ -88,11 +87,13 @@ def split_scenes(db: NuScenesDB, split: str) -> list[tuple[str, str]]:
 def check_inputs(db: NuScenesDB, config: PrepareConfig, scenes: list[tuple[str, str]]) -> None:
     """Refuse, before anything is written, a dataset the run would fail on part-way.
 
-    Every key-frame camera image and LiDAR sweep of the scenes must exist (a dataset written
-    with ``synth --sensors none`` has tables only), and ``--sweeps`` needs LiDAR sweeps
-    between key frames: without them the previous *key frames*, 0.5 s apart, would be
-    stacked as if they were 0.05 s sweeps.
+    Each scene's samples must form its chain, every camera key frame an image size and a
+    calibration with an intrinsic matrix; every key-frame camera image and LiDAR sweep of the
+    scenes must exist (a dataset written with ``synth --sensors none`` has tables only), and
+    ``--sweeps`` needs LiDAR sweeps between key frames: without them the previous *key
+    frames*, 0.5 s apart, would be stacked as if they were 0.05 s sweeps.
     """
+    sample_rigs(db, [sample for token, _ in scenes for sample in db.sample_tokens_of_scene(token)])
     sample_data = db.table("sample_data")
     key = sample_data.column("is_key_frame")
     channels = db.sample_data_channels()
@@ -155,13 +156,16 @@ def claim_output(out: Path, resolved: dict[str, Any], expected: list[str], datar
                 f"{out} holds a cache prepared with another config (differs in: {', '.join(differing)}); "
                 "pass --overwrite to replace it or choose another --out")
     if manifest is not None and overwrite:
-        _delete_cache_content(out)
+        shards = manifest["config"].get("split_scenes")
+        _delete_cache_content(out, shards if isinstance(shards, list) else [])
     write_manifest(out, resolved, expected, dataroot)
 
 
-def _delete_cache_content(out: Path) -> None:
-    """Remove a cache's shards; the manifest stays until the caller rewrites it, so an
-    interrupted overwrite leaves a folder still recognisable as a cache."""
+def _delete_cache_content(out: Path, shards: list[str]) -> None:
+    """Remove the files of a cache's shards (``shards``: its split's scenes), a killed write's
+    temporaries included, and the folders they leave empty. Anything else in them is yours
+    and stays. The manifest stays until the caller rewrites it, so an interrupted overwrite
+    leaves a folder still recognisable as a cache."""
     held = []
     for lock_path in sorted((out / SHARDS).glob("*.lock")):
         descriptor = try_lock(lock_path)
@@ -169,9 +173,19 @@ def _delete_cache_content(out: Path) -> None:
             raise FolderBusyError(f"{out}: shard {lock_path.stem} is being written by another sianms process; "
                                   "wait for it before --overwrite")
         held.append(descriptor)
+    names = [str(shard) for shard in shards]
+    own = {name: {f"{shard}.parquet" for shard in names} for name in DATASETS}
+    own[SHARDS] = {f"{shard}{suffix}" for shard in names for suffix in (".json", ".lock")}
     try:
-        for name in (*DATASETS, SHARDS):
-            shutil.rmtree(out / name, ignore_errors=True)
+        for name, files in own.items():
+            folder = out / name
+            if not folder.is_dir() or folder.is_symlink():
+                continue
+            for entry in folder.iterdir():
+                if (partial_of(entry.name) or entry.name) in files and entry.is_file() and not entry.is_symlink():
+                    entry.unlink()
+            if not any(folder.iterdir()):
+                folder.rmdir()
     finally:
         for descriptor in held:
             release_lock(descriptor)

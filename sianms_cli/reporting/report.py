@@ -36,6 +36,7 @@ from typing import Any, Mapping
 
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
 from sianms_cli.io import build_folder, first_foreign_file, is_inside_working_folder, read_json, write_text
+from sianms_cli.json_stream import is_finite_number
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.reporting.eval_table import (
     COLUMNS,
@@ -201,12 +202,9 @@ def read_evaluation(folder: str | Path) -> dict[str, Any]:
     metrics_path = folder / f"metrics_{table['methods'][0]}.json"
     metrics_cfg = _object(_object(read_json(metrics_path), metrics_path, "").get("cfg"), metrics_path, "cfg")
     for name in ("dist_th_tp", "min_recall"):  # the curves are drawn at these
-        if not _number(metrics_cfg.get(name)):
+        if not is_finite_number(metrics_cfg.get(name)):
             raise DataFormatError(metrics_path, "must be a number", field=f"cfg.{name}")
-    timings = _object(marker.get("timings", {}), marker_path, "timings")
-    for stage, seconds in timings.items():
-        if not _number(seconds):
-            raise DataFormatError(marker_path, "must be a number of seconds", field=f"timings.{stage}")
+    timings = _timings(marker.get("timings", {}), marker_path)
     return strict_json({
         "schema": SCHEMA, "schema_version": SCHEMA_VERSION, "eval": str(folder),
         "config": {**{name: config[name] for name in COMPARABLE_FIELDS}, "metrics": metrics_cfg},
@@ -237,6 +235,10 @@ def read_baseline(path: str | Path) -> dict[str, Any]:
     for name in summary_keys:
         if name not in content:
             raise DataFormatError(path, "missing", field=name)
+    if not isinstance(content["eval"], str):
+        raise DataFormatError(path, "must be the evaluation folder's path", field="eval")
+    _object(content["fingerprints"], path, "fingerprints")
+    _timings(content["timings"], path)
     return {name: content[name] for name in summary_keys}
 
 
@@ -246,14 +248,15 @@ def _object(value: Any, path: Path, field: str) -> dict:
     return value
 
 
-def _number(value: Any) -> bool:
-    """A JSON number, finite: NaN and infinity (which Python's json reads) are no figure."""
-    return (isinstance(value, (int, float)) and not isinstance(value, bool)
-            and (isinstance(value, int) or math.isfinite(value)))
+def _timings(value: Any, path: Path) -> dict:
+    for stage, seconds in _object(value, path, "timings").items():
+        if not is_finite_number(seconds):
+            raise DataFormatError(path, "must be a number of seconds", field=f"timings.{stage}")
+    return value
 
 
 def _number_or_none(value: Any) -> bool:
-    return value is None or _number(value)
+    return value is None or is_finite_number(value)
 
 
 def _count(value: Any) -> bool:

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as dt
+import re
 from contextlib import closing, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -196,14 +197,17 @@ def scene_names_for(version: str, count: int | None) -> list[str]:
         return names[: count or len(names)]
     if count is None:
         raise SianmsError(f"--scenes is required for version {version}")
+    if version.endswith(("test", "trainval")):
+        parts = ("test",) if version.endswith("test") else ("train", "val")
+        total = sum(len(official[part]) for part in parts)
+        if count > total:
+            shares = ", ".join(f"{len(official[part])} {part}" for part in parts)
+            raise SianmsError(f"{version} has {total} scenes ({shares}); --scenes {count} asks for more")
     if version.endswith("test"):
         return official["test"][:count]
     if version.endswith("trainval"):
         val_count = min(len(official["val"]), max(round(count * 150 / 850), 1 if count >= 2 else 0))
-        train_count = count - val_count
-        if train_count > len(official["train"]):
-            raise SianmsError(f"{version} has {len(official['train'])} train scenes; --scenes {count} asks for more")
-        return sorted(official["train"][:train_count] + official["val"][:val_count])
+        return sorted(official["train"][:count - val_count] + official["val"][:val_count])
     return [f"scene-{i:04d}" for i in range(1, count + 1)]
 
 
@@ -290,15 +294,22 @@ def _foreign_within(entry: Path, version: str) -> Path | None:
     if entry.name == version:
         return io.first_foreign_file(entry, lambda file: file.name in VERSION_FILES)
     if entry.name == "maps":
-        return io.first_foreign_file(entry, lambda file: file.suffix == ".png")
+        return io.first_foreign_file(entry, lambda file: _MAP_FILE.fullmatch(file.name) is not None)
     for channel in sorted(entry.iterdir()):
-        suffix = ".jpg" if channel.name in CAMERA_CHANNELS else ".pcd.bin" if channel.name == "LIDAR_TOP" else None
-        if suffix is None or channel.is_symlink() or not channel.is_dir():
+        extension = "jpg" if channel.name in CAMERA_CHANNELS else "pcd.bin" if channel.name == "LIDAR_TOP" else None
+        if extension is None or channel.is_symlink() or not channel.is_dir():
             return channel
-        foreign = io.first_foreign_file(channel, lambda file: file.name.endswith(suffix))
+        pattern = re.compile(rf"{_LOGFILE}__{channel.name}__[0-9]+\.{re.escape(extension)}")
+        foreign = io.first_foreign_file(channel, lambda file: pattern.fullmatch(file.name) is not None)
         if foreign is not None:
             return foreign
     return None
+
+
+# The names synth gives its files (_SensorWriter, NuScenesWriter.add_map): a user's photo.jpg
+# in samples/CAM_FRONT is not one of them, and --overwrite refuses rather than deletes it.
+_LOGFILE = r"n[0-9]{3}-[0-9]{4}(?:-[0-9]{2}){5}[+-][0-9]{4}"
+_MAP_FILE = re.compile(r"[0-9a-f]{32}\.png")
 
 
 @contextmanager

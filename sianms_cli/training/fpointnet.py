@@ -51,8 +51,8 @@ from sianms_cli.data.cache import complete_manifest
 from sianms_cli.data.frustum_dataset import Augmentation, FrustumSelection, class_statistics, concatenate_batches, \
     empty_batch, frustum_shards, iterate_batches
 from sianms_cli.data.multiview import MultiviewSettings, build_union_shards, multiview_settings
-from sianms_cli.data.streams import check_streams, rank_epoch_streams, stream_steps
-from sianms_cli.errors import SianmsError, check_seed
+from sianms_cli.data.streams import check_stream_count, check_streams, rank_epoch_streams, stream_steps
+from sianms_cli.errors import DataFormatError, SianmsError, check_seed
 from sianms_cli.geometry.iou3d import box_iou3d
 from sianms_cli.models.fpointnet import NUM_HEADING_BINS, FPointNetV1
 from sianms_cli.models.fpointnet_losses import decode_boxes, fpointnet_loss
@@ -67,7 +67,6 @@ from sianms_cli.training.run import (
     epoch_generator,
     finish_distributed,
     init_distributed,
-    load_state,
     plain,
     row_counts,
     seed_everything,
@@ -132,6 +131,7 @@ class FPointNetConfig:
                 raise SianmsError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}")
         if self.batch_size < 2:
             raise SianmsError("--batch-size must be at least 2 (batch norm)")
+        check_stream_count(self.streams)
         checks = [
             (self.lr > 0 and math.isfinite(self.lr), f"--lr must be positive, got {self.lr}"),
             (0 < self.decay_rate <= 1, f"--decay-rate must be in (0, 1], got {self.decay_rate}"),
@@ -354,7 +354,7 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
             complete_manifest(cache)
     counts, mean_sizes = size_clusters(config)
     rank, world, device = init_distributed(choose_device(config.device))
-    config = replace(config, streams=config.streams or world)
+    config = replace(config, streams=world if config.streams is None else config.streams)
     check_streams(config.streams, world, config.batch_size, smallest=2)  # batch norm: two frustums per stream
     precision = MixedPrecision(resolve_precision(config.precision, device), device)
     union_settings = (multiview_settings(config.cache, config.dataroot, config.max_distance) if config.multiview
@@ -374,10 +374,12 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
         history: list[dict[str, Any]] = []
         start, samples = 0, 0
         if folder.resumed is not None:
-            load_state(model, folder.resumed.model, folder.checkpoint_path)
-            optimizer.load_state_dict(folder.resumed.optimizer)
+            folder.restore(model, optimizer)
             start, history = folder.resumed.epoch, list(folder.resumed.history)
-            samples = int(folder.resumed.extra["samples"])
+            samples = folder.resumed.extra.get("samples")
+            if not isinstance(samples, int) or isinstance(samples, bool) or samples < 0:
+                raise DataFormatError(folder.checkpoint_path, f"expected a sample count >= 0, got {samples!r}",
+                                      field="extra.samples")
             precision.restore(folder.resumed.extra)
         trained = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
         for epoch in range(start, config.epochs):

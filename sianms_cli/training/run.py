@@ -25,8 +25,7 @@ How a training uses it (the whole API)::
         model, optimizer = ...
         start = 0
         if run.resumed is not None:             # --resume found a checkpoint
-            load_state(model, run.resumed.model, run.checkpoint_path)
-            optimizer.load_state_dict(run.resumed.optimizer)
+            run.restore(model, optimizer)
             start = run.resumed.epoch
         for epoch in range(start, config.epochs):
             set_learning_rate(optimizer, step_decay(config.lr, config.lr_decay, config.lr_step, epoch))
@@ -70,6 +69,7 @@ CONFIG = "config.json"
 METRICS = "metrics.csv"
 CURVES = "curves.png"
 RUN_FILES = (CHECKPOINT, CONFIG, METRICS, CURVES)
+RUN_KINDS = ("siamese", "fpointnet")  # what a run's config.json and checkpoint say they are
 FOLDER_LOCK_NAME = ".sianms.lock"
 CHECKPOINT_FORMAT = "sianms-checkpoint-1"
 _CHECKPOINT_KEYS = {"format", "kind", "config", "epoch", "model", "optimizer", "history", "extra"}
@@ -228,6 +228,8 @@ def load_checkpoint(path: str | Path, kind: str | None = None) -> Checkpoint:
     another model's ``kind``) raises DataFormatError naming the file and what is wrong.
     """
     path = Path(path)
+    if path.is_dir():
+        raise DataFormatError(path, "is a folder, not a checkpoint file")
     if not path.is_file():
         raise DataFormatError(path, "file not found")
     try:
@@ -237,9 +239,8 @@ def load_checkpoint(path: str | Path, kind: str | None = None) -> Checkpoint:
     except PermissionError as error:
         raise DataFormatError(path, f"cannot read: {error.strerror}") from None
     except Exception as error:  # torch's zip and pickle readers raise almost any exception on damaged bytes
-        cause = error.strerror if isinstance(error, OSError) and error.strerror else str(error).strip()
-        first_line = cause.splitlines()[0] if cause else type(error).__name__
-        raise DataFormatError(path, f"not a sianms checkpoint (weights-only load refused it: {first_line})") from None
+        raise DataFormatError(path, f"not a sianms checkpoint (weights-only load refused it: "
+                              f"{_refusal_reason(error)})") from None
     if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
         raise DataFormatError(path, f"not a sianms checkpoint (no format '{CHECKPOINT_FORMAT}')", field="format")
     foreign = sorted(set(data) - _CHECKPOINT_KEYS)
@@ -248,10 +249,37 @@ def load_checkpoint(path: str | Path, kind: str | None = None) -> Checkpoint:
         what = "; ".join(part for part in (f"unexpected keys {foreign}" if foreign else "",
                                            f"missing keys {missing}" if missing else "") if part)
         raise DataFormatError(path, f"not a sianms checkpoint: {what}")
+    for key, wanted in _CHECKPOINT_TYPES.items():
+        if not isinstance(data[key], wanted) or isinstance(data[key], bool):
+            raise DataFormatError(path, f"expected {_TYPE_NAMES[wanted]}, got {type(data[key]).__name__}", field=key)
+    if data["epoch"] < 0:
+        raise DataFormatError(path, f"expected an epoch count >= 0, got {data['epoch']}", field="epoch")
     if kind is not None and data["kind"] != kind:
         raise DataFormatError(path, f"a '{data['kind']}' checkpoint, expected '{kind}'", field="kind")
+    for name, value in data["model"].items():
+        if not isinstance(value, torch.Tensor):
+            raise DataFormatError(path, f"expected a tensor, got {type(value).__name__}", field=f"model.{name}")
+    for i, row in enumerate(data["history"]):
+        if not isinstance(row, dict):
+            raise DataFormatError(path, f"expected an object per epoch, got {type(row).__name__}",
+                                  field=f"history[{i}]")
     del data["format"]
     return Checkpoint(**data)
+
+
+_CHECKPOINT_TYPES = {"kind": str, "config": dict, "epoch": int, "model": dict, "optimizer": dict, "history": list,
+                     "extra": dict}
+_TYPE_NAMES = {str: "a string", dict: "an object", int: "an integer", list: "a list"}
+
+
+def _refusal_reason(error: Exception) -> str:
+    """The line of a torch.load error that says what was wrong with the bytes (not torch's
+    advice to load them as code)."""
+    if isinstance(error, OSError) and error.strerror:
+        return error.strerror
+    text = str(error).strip()
+    detail = text.partition("WeightsUnpickler error:")[2].strip()
+    return (detail or text).splitlines()[0] if (detail or text) else type(error).__name__
 
 
 RECORDED_PATHS = ("cache", "val_cache", "dataroot")
@@ -382,8 +410,9 @@ class RunFolder:
     """
 
     def __init__(self, path: Path, kind: str, config: dict[str, Any], resumed: Checkpoint | None,
-                 write: bool = True) -> None:
+                 write: bool = True, replace: bool = False) -> None:
         self.path, self.kind, self.config, self.resumed, self.write = path, kind, config, resumed, write
+        self.replace = replace  # delete the run files found in the folder once its lock is held
         self.panels: Sequence[tuple[str, Sequence[str]]] | None = None  # curves.png layout (plot_curves)
         self._lock = None
         self._made_folder = False  # this run created the folder
@@ -400,11 +429,11 @@ class RunFolder:
              resume: bool = False, may_differ: Iterable[str] = (), write: bool = True) -> RunFolder:
         """Check ``out`` and return its folder; read its checkpoint when resuming.
 
-        - A folder holding a run (config.json or checkpoint.pt) is refused unless ``resume``
-          (continue it: its config must equal ``config`` except the fields in ``may_differ``)
-          or ``overwrite`` (its run files are deleted; nothing else is touched).
+        - A folder holding a run (:func:`holds_run`) is refused unless ``resume`` (continue it:
+          its config must equal ``config`` except the fields in ``may_differ``) or ``overwrite``
+          (its run files are deleted once the folder's lock is held; nothing else is touched).
         - ``resume`` with no checkpoint yet starts afresh, when config.json gives the same config.
-        - A non-empty folder that holds no run is refused: it is someone else's.
+        - A non-empty folder that holds no run is refused, ``overwrite`` or not: it is someone else's.
         - ``write`` false (the non-zero ranks of a distributed run): check and read only.
         """
         path = Path(out)
@@ -415,7 +444,7 @@ class RunFolder:
             return cls(path, kind, config, resumed, write)
         if path.exists() and not path.is_dir():
             raise OutputExistsError(f"{path} exists and is not a folder; choose another --out")
-        has_run = any((path / name).exists() for name in (CONFIG, CHECKPOINT))
+        has_run = path.is_dir() and holds_run(path)
         if path.is_dir() and not has_run and any(p.name != FOLDER_LOCK_NAME for p in path.iterdir()):
             raise OutputExistsError(f"{path} is a non-empty folder that holds no sianms run; choose another --out")
         resumed = None
@@ -433,11 +462,7 @@ class RunFolder:
                                   "(pass the same options, or --overwrite to start afresh)")
         elif has_run and not overwrite:
             raise OutputExistsError(f"{path} holds a run; pass --resume to continue it or --overwrite to replace it")
-        folder = cls(path, kind, config, resumed, write)
-        if write and has_run and overwrite and not resume:
-            for name in RUN_FILES:
-                (path / name).unlink(missing_ok=True)
-        return folder
+        return cls(path, kind, config, resumed, write, replace=has_run and overwrite)
 
     def __enter__(self) -> RunFolder:
         if self.write:
@@ -454,6 +479,10 @@ class RunFolder:
                 raise
             self._lock = lock
             try:
+                if self.replace:  # only now: a run still writing here holds the lock, and keeps its files
+                    for name in RUN_FILES:
+                        (self.path / name).unlink(missing_ok=True)
+                    self._found -= set(RUN_FILES)
                 write_json(self.path / CONFIG, {"kind": self.kind, **self.config})
             except BaseException as error:
                 self.__exit__(type(error), error, error.__traceback__)
@@ -508,6 +537,17 @@ class RunFolder:
             except OSError:  # something else appeared in it: not ours to delete
                 pass
 
+    def restore(self, model: torch.nn.Module, optimizer: torch.optim.Optimizer) -> None:
+        """Load the resumed checkpoint's weights into ``model`` and its state into ``optimizer``;
+        what does not fit names the checkpoint and the field."""
+        assert self.resumed is not None, "restore() is for a resumed run"
+        load_state(model, self.resumed.model, self.checkpoint_path)
+        try:
+            optimizer.load_state_dict(self.resumed.optimizer)
+        except (KeyError, TypeError, ValueError, RuntimeError) as error:
+            raise DataFormatError(self.checkpoint_path, f"the optimizer state does not fit this model ({error})",
+                                  field="optimizer") from None
+
     def save(self, checkpoint: Checkpoint, *, curves: bool = True) -> None:
         """Write the epoch's checkpoint, then metrics.csv and (``curves``) curves.png from its history.
 
@@ -521,6 +561,26 @@ class RunFolder:
         write_bytes(self.path / METRICS, metrics_csv(checkpoint.history).encode())
         if curves and checkpoint.history:
             self._plot()
+
+
+def holds_run(path: Path) -> bool:
+    """Whether the folder ``path`` holds a sianms training run, which ``--overwrite`` may replace:
+    its config.json is a JSON object of a training kind (:data:`RUN_KINDS`) or, without a
+    config.json, its checkpoint.pt is a sianms checkpoint. Anything else by those names is
+    someone else's."""
+    if (path / CONFIG).is_file():
+        try:
+            stored = read_json(path / CONFIG)
+        except DataFormatError:
+            return False
+        return isinstance(stored, dict) and stored.get("kind") in RUN_KINDS
+    if (path / CHECKPOINT).is_file():
+        try:
+            load_checkpoint(path / CHECKPOINT)
+        except DataFormatError:
+            return False
+        return True
+    return False
 
 
 def _stored_config(path: Path) -> dict[str, Any]:

@@ -61,7 +61,7 @@ from scipy.stats import rankdata
 from sianms_cli.data.cache import complete_manifest
 from sianms_cli.data.siamese import PairingBatch, Scene, cache_feature_shape, epoch_batches, feature_statistics, \
     hardest_candidates, iter_scenes, shard_paths
-from sianms_cli.data.streams import check_streams, rank_epoch_streams, stream_steps
+from sianms_cli.data.streams import check_stream_count, check_streams, rank_epoch_streams, stream_steps
 from sianms_cli.errors import DataFormatError, SianmsError, check_seed
 from sianms_cli.io import make_folder, write_json, write_text
 from sianms_cli.models.losses import double_margin_loss, pair_distances, positive_terms
@@ -73,6 +73,7 @@ from sianms_cli.training.run import CHECKPOINT, Checkpoint, RunFolder, choose_de
     set_learning_rate, step_decay, sum_over_ranks, writes_outputs
 
 KIND = "siamese"
+MAX_WIDTH = 2**16  # a layer width past any sweep (the paper's: 100 to 256): a typo is refused, not allocated
 THRESHOLD_STEPS = 64  # dis_thr candidates: quantiles of the validation candidates' distances
 EMBED_CHUNK = 512  # detections embedded per forward pass at validation
 CURVES = (  # curves.png panels: (title, metrics.csv columns drawn together)
@@ -111,10 +112,12 @@ class SiameseConfig:
         object.__setattr__(self, "conv_channels", tuple(int(v) for v in self.conv_channels))
         object.__setattr__(self, "hidden", tuple(int(v) for v in self.hidden))
         checks = [
-            (self.dim >= 1, f"--dim must be at least 1, got {self.dim}"),
-            (len(self.conv_channels) == 2 and min(self.conv_channels) >= 1,
-             f"--conv-channels must be two positive widths (Fig. 4: two conv groups), got {self.conv_channels}"),
-            (all(width >= 1 for width in self.hidden), f"--hidden widths must be positive, got {self.hidden}"),
+            (1 <= self.dim <= MAX_WIDTH, f"--dim must be in [1, {MAX_WIDTH}], got {self.dim}"),
+            (len(self.conv_channels) == 2 and all(1 <= width <= MAX_WIDTH for width in self.conv_channels),
+             f"--conv-channels must be two widths in [1, {MAX_WIDTH}] (Fig. 4: two conv groups), "
+             f"got {self.conv_channels}"),
+            (all(1 <= width <= MAX_WIDTH for width in self.hidden),
+             f"--hidden widths must be in [1, {MAX_WIDTH}], got {self.hidden}"),
             (0 <= self.alpha < self.beta and math.isfinite(self.beta),
              f"--alpha and --beta need 0 <= alpha < beta, got {self.alpha}, {self.beta}"),
             (self.lr > 0 and math.isfinite(self.lr), f"--lr must be positive, got {self.lr}"),
@@ -128,6 +131,7 @@ class SiameseConfig:
                 raise SianmsError(message)
         check_seed(self.seed)
         check_precision(self.precision)
+        check_stream_count(self.streams)
 
     def resolved(self) -> dict[str, Any]:
         """The config as plain types, paths absolute (config.json and the checkpoint)."""
@@ -397,7 +401,7 @@ def run(config: SiameseConfig, out: str | Path, *, overwrite: bool = False, resu
         raise SianmsError(f"--val-cache holds ROI features of shape {cache_feature_shape(config.val_cache)}, "
                           f"--cache {feature_shape}: prepare both with the same backbone and --roi-size")
     rank, world, device = init_distributed(choose_device(config.device))
-    config = replace(config, streams=config.streams or world)
+    config = replace(config, streams=world if config.streams is None else config.streams)
     check_streams(config.streams, world, config.batch_size, smallest=1)
     precision = MixedPrecision(resolve_precision(config.precision, device), device)
     resolved = config.resolved() | {"feature_shape": list(feature_shape)}
@@ -416,8 +420,7 @@ def run(config: SiameseConfig, out: str | Path, *, overwrite: bool = False, resu
         history: list[dict[str, Any]] = []
         start = 0
         if folder.resumed is not None:
-            load_state(model, folder.resumed.model, folder.checkpoint_path)
-            optimizer.load_state_dict(folder.resumed.optimizer)
+            folder.restore(model, optimizer)
             history, start = list(folder.resumed.history), folder.resumed.epoch
             precision.restore(folder.resumed.extra)
         trained = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
@@ -478,7 +481,12 @@ def load_encoder(run: str | Path, device: str | torch.device = "cpu") -> tuple[S
     path = Path(run)
     if path.is_dir():
         path = path / CHECKPOINT
-    checkpoint = load_checkpoint(path, kind=KIND)
+    return encoder_from_checkpoint(load_checkpoint(path, kind=KIND), path, device)
+
+
+def encoder_from_checkpoint(checkpoint: Checkpoint, path: Path,
+                            device: str | torch.device = "cpu") -> tuple[SiameseEncoder, float]:
+    """:func:`load_encoder` for a checkpoint already read from ``path`` (named in errors)."""
     config = checkpoint.config if isinstance(checkpoint.config, dict) else {}
     shape = checkpoint.extra.get("feature_shape", config.get("feature_shape")) if isinstance(
         checkpoint.extra, dict) else None

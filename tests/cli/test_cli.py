@@ -151,3 +151,38 @@ def test_info_draws_a_contact_sheet_of_the_conditions_it_has(synthetic_dataroot,
         assert picture.width > 6 * 100 and picture.height < picture.width
     again = runner.invoke(app, ["info", "--dataroot", dataroot, "--quiet", "--contact-sheet", str(sheet)])
     assert (again.exit_code, again.output) == (2, f"error: {sheet} exists; pass --overwrite to replace it\n")
+    same = tmp_path / "same.png"
+    clash = runner.invoke(app, ["info", "--dataroot", dataroot, "--quiet", "--out", str(same), "--contact-sheet",
+                                str(same), "--overwrite"])
+    assert (clash.exit_code, clash.output) == (2, f"error: --contact-sheet: {same} is also --out; give each its "
+                                                  "own file\n")
+    assert not same.exists()
+
+
+def test_running_out_of_memory_is_one_error_line_with_exit_code_1():
+    import torch
+    import typer
+
+    from sianms_cli.cli._app import command
+
+    group = typer.Typer()
+
+    @command("allocate", group)
+    def allocate(elements: int) -> None:
+        if elements < 0:
+            raise MemoryError
+        if elements == 0:
+            raise RuntimeError("a bug, not memory")
+        torch.empty(elements)
+
+    @command("other", group)
+    def other() -> None:  # a group of one command would run it without its name
+        pass
+
+    too_many = runner.invoke(group, ["allocate", str(10**15)])
+    assert too_many.exit_code == 1
+    assert too_many.stderr == "error: out of memory (you tried to allocate 4000000000000000 bytes)\n"
+    python_side = runner.invoke(group, ["allocate", "--", "-1"])
+    assert python_side.exit_code == 1 and python_side.stderr == "error: out of memory\n"
+    bug = runner.invoke(group, ["allocate", "0"])
+    assert isinstance(bug.exception, RuntimeError)  # anything else keeps its traceback

@@ -44,6 +44,22 @@ def test_fpointnet_names_the_flag_it_refuses(flags, message):
         CONFIGS["fpointnet"](**flags)
 
 
+@pytest.mark.parametrize("command", ["siamese", "fpointnet"])
+def test_trainings_refuse_zero_streams_rather_than_taking_it_for_the_default(command):
+    with pytest.raises(SianmsError, match="^--streams must be at least 1, got 0$"):
+        CONFIGS[command](streams=0)
+
+
+@pytest.mark.parametrize("flags, message", [
+    (dict(dim=100_000_000_000), r"--dim must be in \[1, 65536\], got 100000000000"),
+    (dict(conv_channels=(128, 70_000)), r"--conv-channels must be two widths in \[1, 65536\]"),
+    (dict(hidden=(0,)), r"--hidden widths must be in \[1, 65536\], got \(0,\)"),
+])
+def test_siamese_bounds_its_layer_widths(flags, message):
+    with pytest.raises(SianmsError, match=message):
+        CONFIGS["siamese"](**flags)
+
+
 def test_prepare_bounds_the_roi_size():
     with pytest.raises(SianmsError, match=f"--roi-size must be between 1 and {MAX_ROI_SIZE}, got 100000"):
         CONFIGS["prepare"](roi_size=100_000)

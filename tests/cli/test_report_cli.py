@@ -157,6 +157,26 @@ def test_a_table_field_of_the_wrong_type_exits_2_naming_it(runs, folders, change
     assert not (evaluation / "report").exists()
 
 
+@pytest.mark.parametrize(("change", "message"), [
+    (_set("fingerprints", value=None), "field 'fingerprints': must be an object, got NoneType"),
+    (_set("timings", "scenes_s", value="abc"), "field 'timings.scenes_s': must be a number of seconds"),
+    (_set("eval", value=3), "field 'eval': must be the evaluation folder's path"),
+    (_set("regions", "all", "vanilla", "car", "AP", value=10**400),
+     "field 'regions.all.vanilla.car.AP': must be a number or null"),
+])
+def test_a_damaged_baseline_report_exits_2_naming_its_field(runs, tmp_path, change, message):
+    """A gate that crashed would exit 1, which CI reads as a regression."""
+    evaluation, _ = runs
+    assert invoke(str(evaluation)).exit_code == 0
+    content = json.loads((evaluation / "report" / "report.json").read_text())
+    change(content)
+    baseline = tmp_path / "baseline.json"
+    baseline.write_text(json.dumps(content))
+    result = invoke(str(evaluation), "--baseline", str(baseline), "--out", str(tmp_path / "r"))
+    assert result.exit_code == 2, result.output
+    assert result.output.splitlines() == [f"error: {baseline}: {message}"]
+
+
 def test_a_figure_without_value_is_still_read(runs, folders):
     evaluation, _ = runs
     folders.edit_table(evaluation, _set("regions", "all", "vanilla", "car", "AP", value=None))

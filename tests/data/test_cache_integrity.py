@@ -103,6 +103,10 @@ def test_readers_refuse_a_folder_without_manifest_or_an_incomplete_cache(tmp_pat
         complete_manifest(tmp_path)
     assert str(error.value) == (f"{tmp_path / 'manifest.json'}: not found: not a `sianms prepare` cache "
                                 "(run `sianms prepare` first)")
+    (tmp_path / "a-file").write_text("x")
+    with pytest.raises(DataFormatError) as error:
+        complete_manifest(tmp_path / "a-file")
+    assert str(error.value) == f"{tmp_path / 'a-file'}: is a file: a cache is the folder `sianms prepare` wrote"
     write_shard(tmp_path)
     write_manifest(tmp_path, {"seed": 0}, ["s", "t", "u"], tmp_path)
     with pytest.raises(DataFormatError) as error:

@@ -54,7 +54,9 @@ def test_user_file_takes_missing_fields_from_the_devkit(tmp_path):
     ({"dist_ths": []}, "dist_ths", "non-empty list"),
     ({"dist_ths": [1, 1]}, "dist_ths", "distinct"),
     ({"dist_th_tp": 3.0}, "dist_th_tp", "one of dist_ths"),
-    ({"min_recall": 1.5}, "min_recall", "[0, 1]"),
+    ({"min_recall": 1.5}, "min_recall", "[0, 0.99]"),
+    ({"min_recall": 1.0}, "min_recall", "[0, 0.99], got 1.0"),  # no recall point left: AP would be NaN
+    ({"min_recall": 0.995}, "min_recall", "[0, 0.99], got 0.995"),
     ({"min_precision": 1}, "min_precision", "[0, 1)"),
     ({"max_boxes_per_sample": 0}, "max_boxes_per_sample", "positive integer"),
     ({"mean_ap_weight": "5"}, "mean_ap_weight", "non-negative number"),

@@ -200,6 +200,8 @@ def test_malformed_documents(tmp_path, document, message):
 def test_missing_file_and_other_top_level_fields(tmp_path):
     with pytest.raises(DataFormatError, match="results file not found"):
         read_results(tmp_path / "nope.json")
+    with pytest.raises(DataFormatError, match="/dev/null: not a regular file, not a results file"):
+        read_results("/dev/null")
     document = submission()
     document["extra"] = {"anything": [1, 2]}
     assert len(read_results(write(tmp_path, "\ufeff" + json.dumps(document))).boxes) == 3  # BOM too

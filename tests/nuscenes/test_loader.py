@@ -180,6 +180,9 @@ def test_missing_table_files(tiny_dataroot):
     error = _load_error(tiny_dataroot)
     assert str(error) == (
         f"{tiny_dataroot / VERSION / 'sample.json'}: table file not found (also missing: map)")
+    (tiny_dataroot / VERSION / "sample.json").mkdir()
+    assert str(_load_error(tiny_dataroot)) == (
+        f"{tiny_dataroot / VERSION / 'sample.json'}: is a folder, not a table file (also missing: map)")
 
 
 def test_invalid_json_names_line_and_column(tiny_dataroot):
@@ -233,7 +236,7 @@ def test_missing_token_names_the_position(tiny_dataroot, rewrite_table):
     ("sample_data", 0, "filename", 7, "expected a string, got 7 (int)"),
     ("sample_data", 5, "sample_token", "", "expected a sample token, got '' (str)"),
     ("ego_pose", 1, "timestamp", 2**63, "expected an integer, got 9223372036854775808 (int)"),
-    ("calibrated_sensor", 0, "camera_intrinsic", [[1, 0], [0, 1]], "expected a 3x3 list of finite numbers, or [], got [[1, 0], [0, 1]] (list)"),
+    ("calibrated_sensor", 0, "camera_intrinsic", [[1, 0], [0, 1]], "expected [] or a 3x3 pinhole matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]] of finite numbers, fx and fy > 0, got [[1, 0], [0, 1]] (list)"),
     ("map", 0, "log_tokens", [""], "expected a list of log tokens, got [''] (list)"),
 ])
 def test_wrong_field_types(tiny_dataroot, rewrite_table, tiny_records, table, row, field, value,
@@ -306,6 +309,21 @@ def test_a_camera_key_frame_without_an_image_size_is_named(tiny_dataroot, rewrit
         sample_rigs(db, db.table("sample").tokens)
     assert str(error.value) == (f"{path}: record {tiny_records['sample_data'][camera]['token']}: field 'width': "
                                 "a camera key frame needs a positive image width, got 0")
+
+
+def test_a_camera_calibration_without_an_intrinsic_is_named(tiny_dataroot, rewrite_table, tiny_records):
+    """[] is a LiDAR's or radar's intrinsic; a camera's frustums would be silently dropped without one."""
+    camera = next(record for record in tiny_records["sample_data"]
+                  if record["is_key_frame"] and "/CAM_" in record["filename"])
+    calibration = camera["calibrated_sensor_token"]
+    path = rewrite_table("calibrated_sensor", lambda records: next(
+        record for record in records if record["token"] == calibration).__setitem__("camera_intrinsic", []))
+    db = NuScenesDB(tiny_dataroot, VERSION)
+    with pytest.raises(DataFormatError) as error:
+        sample_rigs(db, db.table("sample").tokens)
+    assert str(error.value).startswith(f"{path}: record ")
+    assert str(error.value).endswith("field 'camera_intrinsic': a camera's calibration needs its intrinsic matrix, "
+                                     "got []")
 
 
 def test_empty_token_names_the_position(tiny_dataroot, rewrite_table):
@@ -404,6 +422,26 @@ def test_chain_that_loops(tiny_dataroot, rewrite_table, tiny_records):
     assert str(_scene_error(tiny_dataroot)) == (
         f"{path}: record {samples[1]['token']}: field 'next': next sample {samples[0]['token']} "
         "was already visited (a loop)")
+
+
+def test_chain_that_goes_on_after_its_last_sample(tiny_dataroot, rewrite_table, tiny_records):
+    samples = tiny_records["sample"]
+    path = rewrite_table("sample", lambda records: records[2].__setitem__("next", samples[0]["token"]))
+    assert str(_scene_error(tiny_dataroot)) == (
+        f"{path}: record {samples[2]['token']}: field 'next': the last sample of scene "
+        f"{tiny_records['scene'][0]['token']} has a next sample, {samples[0]['token']}")
+
+
+def test_the_metrics_split_blames_a_broken_chain_on_sample_json(tiny_dataroot, rewrite_table, tiny_records):
+    from sianms_cli.evaluation.dataset import eval_split
+    from sianms_cli.nuscenes.splits import split_scene_names
+
+    samples, scene = tiny_records["sample"], tiny_records["scene"][0]
+    split = next(name for name in ("mini_train", "mini_val") if scene["name"] in split_scene_names(name, VERSION))
+    path = rewrite_table("sample", lambda records: records[1].__setitem__("scene_token",
+                                                                          tiny_records["scene"][1]["token"]))
+    with pytest.raises(DataFormatError, match=f"{path}: record {samples[0]['token']}: field 'next'"):
+        eval_split(NuScenesDB(tiny_dataroot, VERSION), split)
 
 
 def test_first_sample_of_another_scene(tiny_dataroot, rewrite_table, tiny_records):

@@ -106,7 +106,10 @@ def test_check_value_accepts(field, value):
     (vector(3), [1.0, True, 2.0], "expected a list of 3 finite numbers, got [1.0, True, 2.0] (list)"),
     (vector(3), [1.0, float("nan"), 2.0], "expected a list of 3 finite numbers, got [1.0, nan, 2.0] (list)"),
     (vector(3), (1.0, 2.0, 3.0), "expected a list of 3 finite numbers, got (1.0, 2.0, 3.0) (tuple)"),
-    (INTRINSIC, [[1, 0], [0, 1]], "expected a 3x3 list of finite numbers, or [], got [[1, 0], [0, 1]] (list)"),
+    (INTRINSIC, [[0, 0, 0], [0, 0, 0], [0, 0, 1]], "expected [] or a 3x3 pinhole matrix [[fx, s, cx], [0, fy, cy], "
+                                                   "[0, 0, 1]] of finite numbers, fx and fy > 0, got [[0, 0, 0], "
+                                                   "[0, 0, 0], [0, 0, 1]] (list)"),
+    (INTRINSIC, [[1, 0], [0, 1]], "expected [] or a 3x3 pinhole matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]] of finite numbers, fx and fy > 0, got [[1, 0], [0, 1]] (list)"),
     (ref("sample"), "", "expected a sample token, got '' (str)"),
     (optional_ref("sample"), None, "expected a sample token or \"\", got None (NoneType)"),
     (ref_list("attribute"), "abc", "expected a list of attribute tokens, got 'abc' (str)"),
@@ -114,6 +117,14 @@ def test_check_value_accepts(field, value):
 ])
 def test_check_value_names_the_problem(field, value, problem):
     assert check_value(field, value) == problem
+
+
+@pytest.mark.parametrize("matrix", [
+    [[800, 0, 400], [0, 800, 300], [0, 0, 2]], [[800, 0, 400], [1, 800, 300], [0, 0, 1]],
+    [[800, 0, 400], [0, -800, 300], [0, 0, 1]], [[800, 0, 400], [0, 800, 300], [0, 1, 1]],
+])
+def test_an_intrinsic_rays_cannot_be_cast_from_is_refused(matrix):
+    assert check_value(INTRINSIC, matrix).startswith("expected [] or a 3x3 pinhole matrix")
 
 
 def test_check_value_shortens_long_values():

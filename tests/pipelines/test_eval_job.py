@@ -3,6 +3,7 @@
 import json
 import shutil
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
@@ -221,6 +222,19 @@ def test_overwrite_refuses_a_link_even_to_what_eval_writes(tmp_path):
     with pytest.raises(OutputExistsError, match="'report' is not something sianms eval writes"):
         claim_output(out, NEW_CONFIG, overwrite=True)
     assert (mine / "report.json").is_file() and (out / "results_vanilla.json").is_file()
+
+
+def test_each_checkpoint_is_read_once(eval_inputs, evaluated, monkeypatch):
+    """One read serves both the model and eval.json's fingerprint of it."""
+    import torch
+
+    reads = []
+    load = torch.load
+    monkeypatch.setattr(torch, "load", lambda path, *args, **kwargs: reads.append(Path(path)) or load(path, *args,
+                                                                                                      **kwargs))
+    run(config_of(eval_inputs, nms_sweep="0.1"), evaluated[0])
+    assert sorted(reads) == sorted(Path(getattr(eval_inputs, name)) / "checkpoint.pt"
+                                   for name in ("siamese", "fpointnet"))
 
 
 def test_scenes_run_on_one_torch_thread_in_this_process_too(eval_inputs, tmp_path, monkeypatch):

@@ -3,6 +3,7 @@
 import errno
 import json
 import os
+import re
 import shutil
 import signal
 import stat
@@ -175,6 +176,18 @@ def test_overwrite_interrupted_after_deleting_still_leaves_a_cache(config, finis
     assert parquet_bytes(out) == parquet_bytes(finished)
 
 
+def test_overwrite_deletes_the_shards_files_and_keeps_yours_among_them(config, finished, tmp_path):
+    out = tmp_path / "cache"
+    shutil.copytree(finished, out)
+    (out / "detections" / "mine").mkdir()
+    (out / "detections" / "mine" / "notes.txt").write_text("x")
+    (out / "frustums" / "README.txt").write_text("y")
+    job.run(PrepareConfig(config.dataroot, config.version, config.split, seed=6), out, overwrite=True)
+    assert (out / "detections" / "mine" / "notes.txt").read_text() == "x"
+    assert (out / "frustums" / "README.txt").read_text() == "y"
+    assert manifest_of(out)["complete"] and manifest_of(out)["config"]["seed"] == 6
+
+
 def test_a_moved_dataset_keeps_its_cache_and_a_changed_one_does_not(config, finished, dataroot, tmp_path):
     copied_dataroot = shutil.copytree(dataroot, tmp_path / "moved")
     out = tmp_path / "cache"
@@ -193,6 +206,32 @@ def test_a_tables_only_dataset_is_refused_before_anything_is_written(synthetic_d
     with pytest.raises(DataFormatError, match=r"sensor file not found \(a dataset written with `sianms synth "
                                               r"--sensors none` has tables only"):
         job.run(PrepareConfig(str(tables_only), "v1.0-mini", "mini_train"), tmp_path / "cache")
+    assert not (tmp_path / "cache").exists()
+
+
+@pytest.mark.parametrize("table, change, message", [
+    ("sample_data", lambda records, camera: records[camera].update(height=0),
+     "field 'height': a camera key frame needs a positive image height, got 0"),
+    ("calibrated_sensor", lambda records, camera: [record.update(camera_intrinsic=[[0, 0, 0], [0, 0, 0], [0, 0, 1]])
+                                                   for record in records if record["camera_intrinsic"]],
+     "field 'camera_intrinsic': expected [] or a 3x3 pinhole matrix"),
+])
+def test_a_damaged_table_is_refused_before_anything_is_written(config, dataroot, tmp_path, table, change, message):
+    """Found when the scene was reached, it would leave a cache whose manifest blocks the rerun
+    on the mended dataset (another dataset_sha256)."""
+    copied = tmp_path / "data"
+    shutil.copytree(dataroot / "v1.0-mini", copied / "v1.0-mini")
+    for name in ("samples", "sweeps", "maps"):
+        if (dataroot / name).exists():
+            (copied / name).symlink_to(dataroot / name)
+    records = json.loads((copied / "v1.0-mini" / "sample_data.json").read_text())
+    last_camera = max(i for i, record in enumerate(records) if record["is_key_frame"] and "/CAM_" in record["filename"])
+    path = copied / "v1.0-mini" / f"{table}.json"
+    table_records = json.loads(path.read_text())
+    change(table_records, last_camera)
+    path.write_text(json.dumps(table_records))
+    with pytest.raises(DataFormatError, match=re.escape(message)):
+        job.run(PrepareConfig(str(copied), config.version, config.split, seed=5), tmp_path / "cache")
     assert not (tmp_path / "cache").exists()
 
 

@@ -162,7 +162,7 @@ def test_an_empty_folder_is_filled_and_a_non_empty_one_refused(tmp_path, make_ti
 
 
 def test_overwrite_replaces_an_earlier_synth_output(tmp_path, make_tiny):
-    out = make_tiny(tmp_path / "out", version="synth-v1", scenes=1, sensors="none", scene_seconds=0.5)
+    out = make_tiny(tmp_path / "out", version="synth-v1", scenes=1, image_scale=0.1, scene_seconds=0.5)
     run(SynthConfig(scenes=1, image_scale=0.1, scene_seconds=0.5, seed=9), out, overwrite=True)
     assert sorted(p.name for p in out.iterdir()) == ["maps", "samples", MARKER_NAME, "v1.0-mini"]
     assert json.loads((out / MARKER_NAME).read_text())["config"]["seed"] == 9
@@ -202,10 +202,17 @@ def test_overwrite_never_replaces_a_folder_with_anything_else_in_it(tmp_path, ma
     ("samples/LIDAR_TOP/a.jpg", "samples/LIDAR_TOP/a.jpg"),
     ("maps/expansion/boston-seaport.json", "maps/expansion"),  # where the devkit's map expansion goes
     ("v1.0-mini/notes.txt", "v1.0-mini/notes.txt"),
+    ("samples/CAM_FRONT/myphoto.jpg", "samples/CAM_FRONT/myphoto.jpg"),  # synth's suffix, not its name
+    ("maps/myscan.png", "maps/myscan.png"),
+    ("samples/CAM_BACK/n008-2018-08-01-15-16-36-0400__CAM_FRONT__1533151603512404.jpg",
+     "samples/CAM_BACK/n008-2018-08-01-15-16-36-0400__CAM_FRONT__1533151603512404.jpg"),
 ])
 def test_overwrite_looks_inside_synths_own_folders(tmp_path, placed, named):
     out = _earlier_output(tmp_path / "out")
-    for own in ("samples/CAM_FRONT/a.jpg", "samples/LIDAR_TOP/b.pcd.bin", "maps/c.png", "v1.0-mini/scene.json", placed):
+    own_files = ("samples/CAM_FRONT/n008-2018-08-01-15-16-36-0400__CAM_FRONT__1533151603512404.jpg",
+                 "samples/LIDAR_TOP/n015-2018-07-24-11-22-45+0800__LIDAR_TOP__1532402927647951.pcd.bin",
+                 "maps/36092f0b03a857c6a3403e25b4b7aab3.png", "v1.0-mini/scene.json")
+    for own in (*own_files, placed):
         (out / own).parent.mkdir(parents=True, exist_ok=True)
         (out / own).write_text("x")
     with pytest.raises(OutputExistsError, match=f"{out}: not replaced: '{named}' is not something sianms synth writes"):
@@ -269,6 +276,8 @@ def test_trainval_names_come_from_the_devkit_train_and_val_lists():
     (dict(scenes=0), "--scenes must be at least 1"),
     (dict(scenes=11), "has 10 scenes"),
     (dict(version="v1.0-trainval"), "--scenes is required"),
+    (dict(version="v1.0-trainval", scenes=851), r"v1.0-trainval has 850 scenes \(700 train, 150 val\); --scenes 851"),
+    (dict(version="v1.0-test", scenes=151), r"v1.0-test has 150 scenes \(150 test\); --scenes 151 asks for more"),
     (dict(scenes=1, image_scale=0.0), "--image-scale"),
     (dict(scenes=1, image_scale=float("nan")), "--image-scale"),
     (dict(scenes=1, sensors="radar"), "--sensors must be one of"),

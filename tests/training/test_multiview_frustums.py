@@ -10,7 +10,7 @@ import pytest
 
 from sianms_cli.data.frustum_dataset import FrustumSelection, iterate_batches, read_shard
 from sianms_cli.data.multiview import build_union_shards, multiview_settings, union_frustums
-from sianms_cli.errors import SianmsError
+from sianms_cli.errors import DataFormatError, SianmsError
 from sianms_cli.geometry.boxes import points_in_boxes
 from sianms_cli.geometry.frustum import rotate_to_frustum
 from sianms_cli.geometry.transforms import sensor_to_global
@@ -155,3 +155,9 @@ def test_a_dataroot_of_another_dataset_is_refused(inputs, tmp_path):
     log.write_text(json.dumps(json.loads(log.read_text()), indent=3))  # same records, other bytes
     with pytest.raises(SianmsError, match="--dataroot"):
         build_union_shards(cache, tmp_path / "unions", ALL, multiview_settings(cache, str(other), 50.0))
+    # and when every union file is there already (a resume): its config would record the other dataset
+    build_union_shards(cache, tmp_path / "unions", ALL, multiview_settings(cache, str(root), 50.0))
+    with pytest.raises(SianmsError, match="--dataroot .*: not the dataset the cache"):
+        build_union_shards(cache, tmp_path / "unions", ALL, multiview_settings(cache, str(other), 50.0))
+    with pytest.raises(DataFormatError, match="version folder not found"):
+        build_union_shards(cache, tmp_path / "unions", ALL, multiview_settings(cache, str(tmp_path / "none"), 50.0))

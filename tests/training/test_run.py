@@ -59,8 +59,9 @@ def test_checkpoint_round_trip(tmp_path):
 def test_a_pickled_object_is_refused(tmp_path):
     path = tmp_path / "evil.pt"
     torch.save({"format": "sianms-checkpoint-1", "model": {}, "payload": ValueError("x")}, path)
-    with pytest.raises(DataFormatError, match="evil.pt: not a sianms checkpoint .weights-only load refused it"):
+    with pytest.raises(DataFormatError, match="evil.pt: not a sianms checkpoint .weights-only load refused it") as error:
         load_checkpoint(path)
+    assert "Unsupported global" in str(error.value) and "weights_only" not in str(error.value)  # no advice to unpickle
     good = save_checkpoint(tmp_path / CHECKPOINT, small_checkpoint()[1]).read_bytes()
     # the last two: torch's zip reader raises OSError(EINVAL), its unpickler IndexError
     for content in (pickle.dumps({"a": 1}) + b"junk", b"junk", b"", b"PK\x03\x04 a broken zip",
@@ -84,6 +85,39 @@ def test_foreign_keys_and_kinds_are_refused(tmp_path):
         load_checkpoint(path, "fpointnet")
     with pytest.raises(DataFormatError, match="file not found"):
         load_checkpoint(tmp_path / "missing.pt")
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("epoch", "x", "field 'epoch': expected an integer, got str"),
+    ("epoch", True, "field 'epoch': expected an integer, got bool"),
+    ("epoch", -3, "field 'epoch': expected an epoch count >= 0, got -3"),
+    ("history", None, "field 'history': expected a list, got NoneType"),
+    ("history", [1], r"field 'history\[0\]': expected an object per epoch, got int"),
+    ("optimizer", [], "field 'optimizer': expected an object, got list"),
+    ("model", {"weight": 5}, "field 'model.weight': expected a tensor, got int"),
+    ("kind", 3, "field 'kind': expected a string, got int"),
+])
+def test_a_checkpoint_field_of_the_wrong_type_is_named(tmp_path, field, value, message):
+    data = {"format": "sianms-checkpoint-1", **vars(small_checkpoint()[1]), field: value}
+    torch.save(data, tmp_path / CHECKPOINT)
+    with pytest.raises(DataFormatError, match=message):
+        load_checkpoint(tmp_path / CHECKPOINT)
+
+
+def test_a_folder_named_like_a_checkpoint_is_called_a_folder(tmp_path):
+    (tmp_path / CHECKPOINT).mkdir()
+    with pytest.raises(DataFormatError, match="is a folder, not a checkpoint file"):
+        load_checkpoint(tmp_path / CHECKPOINT)
+
+
+def test_a_resume_whose_optimizer_state_does_not_fit_names_the_field(tmp_path):
+    net, checkpoint = small_checkpoint()
+    with RunFolder.open(tmp_path / "run", kind="siamese", config=checkpoint.config) as run:
+        run.save(replace(checkpoint, optimizer={"x": 1}), curves=False)
+    resumed = RunFolder.open(tmp_path / "run", kind="siamese", config=checkpoint.config, resume=True)
+    with pytest.raises(DataFormatError, match="checkpoint.pt: field 'optimizer': the optimizer state does not fit"):
+        with resumed:
+            resumed.restore(net, torch.optim.Adam(net.parameters()))
 
 
 def test_weights_that_do_not_fit_name_the_key(tmp_path):
@@ -111,8 +145,10 @@ def test_run_folder_refuses_resumes_and_overwrites(tmp_path):
         RunFolder.open(out, kind="siamese", config={"dim": 3, "epochs": 3}, resume=True)
     with pytest.raises(SianmsError, match="--resume continues the run in the folder and --overwrite starts it afresh"):
         RunFolder.open(out, kind="siamese", config=config, resume=True, overwrite=True)
-    RunFolder.open(out, kind="siamese", config=config, overwrite=True)
-    assert not (out / CHECKPOINT).exists()
+    replacing = RunFolder.open(out, kind="siamese", config=config, overwrite=True)
+    assert (out / CHECKPOINT).exists()  # deleted only once the folder's lock is held
+    with replacing:
+        assert not (out / CHECKPOINT).exists()
     assert RunFolder.open(out, kind="siamese", config=config, resume=True).resumed is None  # nothing to resume
 
 
@@ -124,6 +160,33 @@ def test_a_foreign_folder_or_file_is_refused(tmp_path):
     (tmp_path / "file").write_text("x")
     with pytest.raises(OutputExistsError, match="not a folder"):
         RunFolder.open(tmp_path / "file", kind="siamese", config={})
+
+
+def test_overwrite_refuses_a_folder_whose_run_files_are_someone_elses(tmp_path):
+    """config.json and checkpoint.pt are common names: only a sianms run's make a folder a run."""
+    cases = ((CONFIG, '{"my": "settings"}'), (CONFIG, '{"kind": "siamese"'), (CHECKPOINT, "weights"))
+    for i, (name, content) in enumerate(cases):
+        theirs = tmp_path / str(i)
+        theirs.mkdir()
+        (theirs / name).write_text(content)
+        (theirs / METRICS).write_text("a,b\n")
+        with pytest.raises(OutputExistsError, match="holds no sianms run"):
+            RunFolder.open(theirs, kind="siamese", config={}, overwrite=True)
+        assert (theirs / name).read_text() == content and (theirs / METRICS).read_text() == "a,b\n"
+
+
+def test_overwrite_leaves_a_running_run_its_files(tmp_path):
+    """A second run told to overwrite a folder another run is writing is refused by the lock
+    before it deletes anything."""
+    from sianms_cli.io import FolderBusyError
+
+    config = {"dim": 2}
+    with RunFolder.open(tmp_path / "run", kind="siamese", config=config) as running:
+        _, checkpoint = small_checkpoint()
+        running.save(checkpoint, curves=False)
+        with pytest.raises(FolderBusyError):
+            RunFolder.open(tmp_path / "run", kind="siamese", config=config, overwrite=True).__enter__()
+        assert (tmp_path / "run" / CHECKPOINT).is_file() and (tmp_path / "run" / CONFIG).is_file()
 
 
 def test_a_second_writer_is_refused(tmp_path):
