@@ -740,6 +740,14 @@ class NuScenesDB:
         """(H, W, 3) uint8 RGB image of a camera sample_data.
 
         SianmsError if the record is not from a camera; DataFormatError for a missing or
-        undecodable file."""
+        undecodable file, or one whose size is not the record's ``width`` and ``height`` (boxes
+        are projected and clipped to the record's size, ROI features pooled from the file)."""
         self._require_modality(sd_token, "camera")
-        return read_image(self.data_path(sd_token), sd_token)
+        path = self.data_path(sd_token)
+        image = read_image(path, sd_token)
+        sample_data = self.table("sample_data")
+        record = sample_data.record(sample_data.index(sd_token))
+        if (image.shape[1], image.shape[0]) != (record["width"], record["height"]):
+            raise DataFormatError(path, f"is {image.shape[1]}x{image.shape[0]} pixels, but its sample_data record "
+                                  f"{sd_token} says width {record['width']}, height {record['height']}")
+        return image

@@ -152,8 +152,8 @@ def test_sensor_files_are_read_through_the_db(db, tiny_dataroot, tiny_records):
     points = np.arange(15, dtype=np.float32).reshape(3, 5)
     write_pcd_bin(db.data_path(lidar["token"]), points)
     np.testing.assert_array_equal(db.read_lidar(lidar["token"]), points)
-    write_jpeg(db.data_path(camera["token"]), np.full((9, 16, 3), 128, np.uint8))
-    assert db.read_image(camera["token"]).shape == (9, 16, 3)
+    write_jpeg(db.data_path(camera["token"]), np.full((900, 1600, 3), 128, np.uint8))
+    assert db.read_image(camera["token"]).shape == (900, 1600, 3)
     with pytest.raises(SianmsError, match=f"sample_data {camera['token']} is from CAM_FRONT "
                                           r"\(camera\), not a lidar"):
         db.read_lidar(camera["token"])
@@ -165,6 +165,16 @@ def test_sensor_files_are_read_through_the_db(db, tiny_dataroot, tiny_records):
 
 
 # --------------------------------------------------------------------------- malformed input
+
+
+def test_an_image_of_another_size_than_its_record_is_named(db, tiny_records):
+    """Boxes are clipped to the record's size and features pooled from the file: the two must agree."""
+    camera = tiny_records["sample_data"][0]
+    write_jpeg(db.data_path(camera["token"]), np.full((450, 800, 3), 128, np.uint8))
+    with pytest.raises(DataFormatError) as error:
+        db.read_image(camera["token"])
+    assert str(error.value) == (f"{db.data_path(camera['token'])}: is 800x450 pixels, but its sample_data record "
+                                f"{camera['token']} says width 1600, height 900")
 
 
 def test_missing_version_folder(tmp_path):
