@@ -1,21 +1,19 @@
 #!/usr/bin/env bash
-# Which world does this machine draw from a seed, and does turning numpy's AVX-512 paths off make
-# it draw the AVX2 machines' one? Writes the CI gate's quick-demo dataset (v1.0-mini, 2 scenes,
-# image scale 0.25, seed 1) twice, with numpy as it is and with X86_V4 AVX512_ICL AVX512_SPR
-# disabled (numpy 2.4 needs all three names), and names the CI baseline whose dataset_sha256 each
-# fingerprint equals. On an AVX-512 machine the second line answering `AuthenticAMD.AVX2` would
-# confirm numpy's AVX-512 (SVML) paths as the cause of README "The CI gate"'s AVX2 finding; the
-# tables and sensor folders whose bytes the two runs differ in are listed, to show where.
-# About a minute a run on 2 cores; needs the venv with sianms installed active.
+# Does this machine draw the CI gate's quick-demo dataset (v1.0-mini, 2 scenes, image scale 0.25,
+# seed 1) as the baselines do? Writes it twice, with the machine's native kernels
+# (SIANMS_NATIVE_KERNELS=1) and with the AVX2 kernels sianms asks for on every AVX2 CPU
+# (sianms_cli/kernels.py), names the CI baseline whose dataset_sha256 each fingerprint equals and
+# lists the tables and sensor folders the two differ in. On an AVX2-only machine both runs are
+# one; on an AVX-512 one the second should name the AuthenticAMD.AVX2 baseline's dataset
+# (README, "The CI gate"). About a minute a run on 2 cores; needs the venv with sianms installed active.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scratch="$(mktemp -d)"
 trap 'rm -rf "$scratch"' EXIT
-.ci/platform
-NPY_DISABLE_CPU_FEATURES="" sianms synth --version v1.0-mini --scenes 2 --image-scale 0.25 --seed 1 --workers 2 \
-    --quiet --out "$scratch/as-is"
-NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL AVX512_SPR" sianms synth --version v1.0-mini --scenes 2 \
-    --image-scale 0.25 --seed 1 --workers 2 --quiet --out "$scratch/avx512-off"
+echo "$(SIANMS_NATIVE_KERNELS=1 .ci/platform) natively, $(.ci/platform) as sianms runs"
+SIANMS_NATIVE_KERNELS=1 sianms synth --version v1.0-mini --scenes 2 --image-scale 0.25 --seed 1 --workers 2 \
+    --quiet --out "$scratch/native"
+sianms synth --version v1.0-mini --scenes 2 --image-scale 0.25 --seed 1 --workers 2 --quiet --out "$scratch/avx2"
 python - "$scratch" <<'PY'
 import hashlib, json, sys
 from pathlib import Path
@@ -36,11 +34,11 @@ known = {}
 for path in sorted(Path(".ci").glob("demo-quick-report.*.json")):
     platform = path.name.removeprefix("demo-quick-report.").removesuffix(".json")
     known.setdefault(json.loads(path.read_text())["config"]["dataset_sha256"], []).append(platform)
-runs = {"as-is": "numpy as it is", "avx512-off": "numpy's AVX-512 paths off"}
+runs = {"native": "native kernels", "avx2": "AVX2 kernels"}
 for folder, label in runs.items():
     fingerprint = dataset_fingerprint(Path(sys.argv[1]) / folder / "v1.0-mini")
     print(f"{label}: {fingerprint[:12]}, the dataset of {', '.join(known.get(fingerprint, ['no baseline']))}")
-as_is, off = (part_digests(Path(sys.argv[1]) / folder) for folder in runs)
-differing = [part for part in as_is if as_is[part] != off.get(part)]
+native, avx2 = (part_digests(Path(sys.argv[1]) / folder) for folder in runs)
+differing = [part for part in native if native[part] != avx2.get(part)]
 print(f"parts that differ between the two: {', '.join(differing) or 'none'}")
 PY

@@ -4,6 +4,10 @@ Importing the command line takes a few tenths of a second (typer, numpy, the sub
 SIGINT or SIGTERM then would end in a traceback from the middle of an import. Until the command
 line is ready, either signal ends the process at once with the interrupted line: nothing has
 been written yet. From then on :func:`sianms_cli.cli.main` handles them.
+
+Before numpy or torch loads, the arithmetic libraries are asked for their AVX2 kernels
+(:mod:`sianms_cli.kernels`), so a seed gives the same bytes on AVX2 and AVX-512 machines; the
+command's worker processes and torchrun ranks inherit the setting.
 """
 
 import os
@@ -19,6 +23,9 @@ def _end_while_starting(signum: int, frame: object) -> None:
 def main() -> None:
     signal.signal(signal.SIGINT, _end_while_starting)
     signal.signal(signal.SIGTERM, _end_while_starting)
+    from sianms_cli.kernels import use_avx2_kernels
+
+    use_avx2_kernels()
     from sianms_cli.cli import main as command_line
 
     command_line()

@@ -19,6 +19,10 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
     for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(_variable, "1")
 
+from sianms_cli.kernels import use_avx2_kernels  # noqa: E402  before numpy and torch load, as `sianms` does
+
+use_avx2_kernels()
+
 import pytest
 
 from sianms_cli.synth.generate import SynthConfig, run as run_synth

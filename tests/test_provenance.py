@@ -1,4 +1,5 @@
-"""The numeric platform recorded beside outputs: CPU maker and vector width from /proc/cpuinfo."""
+"""The numeric platform recorded beside outputs: CPU maker and vector width from /proc/cpuinfo,
+and the kernels the arithmetic libraries run (AVX2 ones on every AVX2 CPU, sianms_cli.kernels)."""
 
 import os
 import subprocess
@@ -7,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from sianms_cli.kernels import AVX2_KERNELS, NATIVE_SWITCH, cpu_facts
 from sianms_cli.provenance import numeric_platform
 
 XEON = """processor\t: 0
@@ -26,7 +28,7 @@ OLD = "vendor_id\t: GenuineIntel\nflags\t\t: sse2 sse4_2 avx\n"
 def test_maker_and_vector_width_from_cpuinfo(cpuinfo, vendor, width):
     record = numeric_platform(cpuinfo)
     assert (record["cpu_vendor"], record["vector_width"]) == (vendor, width)
-    assert set(record) == {"cpu_vendor", "vector_width", "machine", "python", "numpy", "numba"}
+    assert set(record) == {"cpu_vendor", "vector_width", "kernels", "machine", "python", "numpy", "numba"}
 
 
 def test_the_ci_names_the_platform_as_the_record_does():
@@ -35,4 +37,14 @@ def test_the_ci_names_the_platform_as_the_record_does():
     printed = subprocess.run([str(script)], capture_output=True, text=True, check=True,
                              env={**os.environ, "PATH": path}).stdout.strip()
     record = numeric_platform()
-    assert printed == f"{record['cpu_vendor']}.{record['vector_width']}"
+    assert printed == f"{record['cpu_vendor']}.{record['kernels']}"  # this session's, pinned as `sianms` pins
+
+
+def test_the_ci_names_the_native_platform_when_asked_for_native_kernels():
+    script = Path(__file__).resolve().parents[1] / ".ci" / "platform"
+    path = f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}"
+    environment = {name: value for name, value in os.environ.items() if name not in AVX2_KERNELS}
+    printed = subprocess.run([str(script)], capture_output=True, text=True, check=True,
+                             env={**environment, "PATH": path, NATIVE_SWITCH: "1"}).stdout.strip()
+    vendor, width = cpu_facts()
+    assert printed == f"{vendor}.{width}"

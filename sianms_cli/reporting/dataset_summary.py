@@ -474,9 +474,12 @@ def _synth_marker_lines(marker: dict | None) -> list[str]:
         return []
     config = marker.get("config") if isinstance(marker.get("config"), dict) else {}
     recorded = marker.get("platform")
-    where = ("platform not recorded" if not isinstance(recorded, dict) else
-             f"on {recorded.get('cpu_vendor')} {recorded.get('vector_width')}, numpy {recorded.get('numpy')}, "
-             f"numba {recorded.get('numba')}")
+    if not isinstance(recorded, dict):
+        where = "platform not recorded"
+    else:
+        kernels = f", {recorded['kernels']} kernels" if "kernels" in recorded else ""  # recorded since 0.1.0's AVX2 pin
+        where = (f"on {recorded.get('cpu_vendor')} {recorded.get('vector_width')}{kernels}, "
+                 f"numpy {recorded.get('numpy')}, numba {recorded.get('numba')}")
     return [f"  written by sianms synth {marker.get('sianms_version')} (seed {config.get('seed')}), {where}"]
 
 

@@ -71,12 +71,16 @@ def test_info_as_json_and_as_text(synthetic_dataroot, tmp_path):
     here = numeric_platform()
     assert summary["synth_marker"]["config"]["seed"] == 3 and summary["synth_marker"]["platform"] == here
     assert (f"\n  written by sianms synth {__version__} (seed 3), on {here['cpu_vendor']} {here['vector_width']}, "
-            f"numpy {here['numpy']}, numba {here['numba']}\n") in text
+            f"{here['kernels']} kernels, numpy {here['numpy']}, numba {here['numba']}\n") in text
 
 
 def test_info_says_who_wrote_a_synthetic_dataroot_and_nothing_for_another():
     old = {"kind": "sianms synth dataroot", "sianms_version": "0.1.0", "config": {"seed": 7}}
     assert _synth_marker_lines(old) == ["  written by sianms synth 0.1.0 (seed 7), platform not recorded"]
+    before_kernels = {**old, "platform": {"cpu_vendor": "GenuineIntel", "vector_width": "AVX512", "numpy": "2.4.6",
+                                          "numba": "0.68.1"}}
+    assert _synth_marker_lines(before_kernels) == [
+        "  written by sianms synth 0.1.0 (seed 7), on GenuineIntel AVX512, numpy 2.4.6, numba 0.68.1"]
     assert _synth_marker_lines(None) == []
 
 

@@ -1,0 +1,91 @@
+"""Which vector kernels the arithmetic libraries run: AVX2 ones on every x86-64 CPU that has
+AVX2, so a seed gives the same bytes on AVX2 and AVX-512 machines.
+
+Each library picks its kernels by the CPU when it loads, and its AVX-512 kernels round otherwise
+than its AVX2 ones: OpenBLAS's (numpy's matrix products: the synthetic dataset's tables differ
+in their last bits), torch's ATen, oneDNN and MKL kernels and numpy's own float32 loops (both
+trainings). Measured on an AMD EPYC with AVX-512: with the five settings of :data:`AVX2_KERNELS`
+the quick demo's dataset, caches, both checkpoints and every Table I cell equal an AVX2-only
+EPYC's to the bit; with any one of them left out they do not (README, "The CI gate"). The
+settings are read once, when each library loads, so :func:`use_avx2_kernels` runs before numpy
+and torch are imported: first thing in the ``sianms`` executable, whose worker processes and
+torchrun ranks inherit them.
+
+The CPU maker still matters: MKL picks kernels by maker, and its reproducible mode
+(``MKL_CBWR``) is documented for Intel CPUs only.
+
+Stdlib only: this module is imported before numpy.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+from pathlib import Path
+from typing import MutableMapping
+
+CPUINFO = Path("/proc/cpuinfo")
+AVX512_FLAGS = frozenset({"avx512f", "avx512cd", "avx512bw", "avx512dq", "avx512vl"})
+"""What numpy's AVX512_SKX and torch's AVX512 kernels both need."""
+AVX2_FLAGS = frozenset({"avx2", "fma"})
+AVX2_KERNELS = {
+    "OPENBLAS_CORETYPE": "Haswell",  # OpenBLAS's AVX2 kernels (its Zen kernels are the same ones)
+    "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR",  # numpy 2.4 needs all three names
+    "ATEN_CPU_CAPABILITY": "avx2",
+    "ONEDNN_MAX_CPU_ISA": "AVX2",
+    "MKL_ENABLE_INSTRUCTIONS": "AVX2",
+}
+NATIVE_SWITCH = "SIANMS_NATIVE_KERNELS"
+"""Set to 1 to let every library pick its kernels by the CPU (faster where AVX-512 pays; other bytes)."""
+
+
+def cpu_facts(cpuinfo: str | None = None) -> tuple[str, str]:
+    """(CPU maker, vector width): ``AVX512``, ``AVX2``, ``other``, or ``unknown`` without /proc/cpuinfo.
+
+    Args:
+        cpuinfo: the text of ``/proc/cpuinfo``; read from the machine when None.
+    """
+    text = _read_cpuinfo() if cpuinfo is None else cpuinfo
+    fields: dict[str, str] = {}
+    for line in text.splitlines():
+        key, _, value = line.partition(":")
+        fields.setdefault(key.strip(), value.strip())
+    flags = set(fields.get("flags", "").split())
+    width = ("unknown" if not flags else "AVX512" if AVX512_FLAGS <= flags else "AVX2" if AVX2_FLAGS <= flags
+             else "other")
+    return fields.get("vendor_id", "unknown"), width
+
+
+def use_avx2_kernels(environ: MutableMapping[str, str] = os.environ, cpuinfo: str | None = None,
+                     machine: str | None = None) -> dict[str, str]:
+    """Ask every arithmetic library for its AVX2 kernels, on an x86-64 CPU that has AVX2 and FMA.
+
+    A setting the user made is kept, and :data:`NATIVE_SWITCH` set to 1 asks for none; on
+    another CPU nothing is asked (AVX2 kernels would not run there). Returns what it set.
+    """
+    machine = platform.machine() if machine is None else machine
+    if environ.get(NATIVE_SWITCH) == "1" or machine not in ("x86_64", "AMD64"):
+        return {}
+    if cpu_facts(cpuinfo)[1] not in ("AVX2", "AVX512"):
+        return {}
+    added = {name: value for name, value in AVX2_KERNELS.items() if name not in environ}
+    environ.update(added)
+    return added
+
+
+def kernels_in_use(width: str, environ: MutableMapping[str, str] = os.environ) -> str:
+    """The kernels a CPU of vector ``width`` runs under ``environ``: ``AVX2`` where every setting
+    of :data:`AVX2_KERNELS` holds, the CPU's own width where none is made, else ``custom``."""
+    made = [environ.get(name) == value for name, value in AVX2_KERNELS.items()]
+    if all(made) and width in ("AVX2", "AVX512"):
+        return "AVX2"
+    if not any(name in environ for name in AVX2_KERNELS):
+        return width
+    return "custom"
+
+
+def _read_cpuinfo() -> str:
+    try:
+        return CPUINFO.read_text(errors="replace")
+    except OSError:
+        return ""

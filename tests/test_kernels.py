@@ -1,0 +1,70 @@
+"""AVX2 kernels on every x86-64 CPU that has them (sianms_cli.kernels): asked for before numpy and
+torch load, never on a CPU that lacks them, never over a user's own setting."""
+
+import os
+import platform
+import subprocess
+import sys
+
+import pytest
+
+from sianms_cli.kernels import AVX2_KERNELS, NATIVE_SWITCH, cpu_facts, kernels_in_use, use_avx2_kernels
+
+XEON = "vendor_id\t: GenuineIntel\nflags\t\t: fpu sse2 avx avx2 fma avx512f avx512dq avx512cd avx512bw avx512vl\n"
+EPYC_ZEN3 = "vendor_id\t: AuthenticAMD\nflags\t\t: fpu sse2 avx avx2 fma bmi2\n"
+OLD = "vendor_id\t: GenuineIntel\nflags\t\t: sse2 sse4_2 avx\n"
+ON_AVX2_CPU = cpu_facts()[1] in ("AVX2", "AVX512") and platform.machine() == "x86_64"
+
+
+@pytest.mark.parametrize("cpuinfo", [XEON, EPYC_ZEN3])
+def test_an_avx2_cpu_is_asked_for_avx2_kernels_by_every_library(cpuinfo):
+    environ = {}
+    assert use_avx2_kernels(environ, cpuinfo, "x86_64") == AVX2_KERNELS
+    assert environ == AVX2_KERNELS
+    assert kernels_in_use(cpu_facts(cpuinfo)[1], environ) == "AVX2"
+
+
+@pytest.mark.parametrize("cpuinfo, machine", [(OLD, "x86_64"), ("", "x86_64"), (XEON, "aarch64")])
+def test_a_cpu_without_avx2_is_asked_for_nothing(cpuinfo, machine):
+    environ = {}
+    assert use_avx2_kernels(environ, cpuinfo, machine) == {} and environ == {}
+    assert kernels_in_use(cpu_facts(cpuinfo)[1], environ) == cpu_facts(cpuinfo)[1]
+
+
+def test_a_users_own_setting_is_kept_and_the_kernels_are_then_custom():
+    environ = {"OPENBLAS_CORETYPE": "SkylakeX"}
+    added = use_avx2_kernels(environ, XEON, "x86_64")
+    assert "OPENBLAS_CORETYPE" not in added and environ["OPENBLAS_CORETYPE"] == "SkylakeX"
+    assert kernels_in_use("AVX512", environ) == "custom"
+
+
+def test_native_kernels_on_request():
+    environ = {NATIVE_SWITCH: "1"}
+    assert use_avx2_kernels(environ, XEON, "x86_64") == {} and environ == {NATIVE_SWITCH: "1"}
+    assert kernels_in_use("AVX512", environ) == "AVX512"
+
+
+@pytest.mark.skipif(not ON_AVX2_CPU, reason="an x86-64 CPU with AVX2")
+def test_this_session_runs_torchs_avx2_kernels_as_sianms_does():
+    import torch
+
+    assert torch.backends.cpu.get_cpu_capability() == "AVX2"
+
+
+@pytest.mark.skipif(not ON_AVX2_CPU, reason="an x86-64 CPU with AVX2")
+def test_the_sianms_executable_asks_before_numpy_and_torch_load():
+    # `sianms` started with none of the settings made, its command line replaced by a probe: numpy
+    # is not loaded yet when the command line starts, and torch then runs its AVX2 kernels.
+    environment = {name: value for name, value in os.environ.items() if name not in AVX2_KERNELS}
+    environment.pop(NATIVE_SWITCH, None)
+    probe = ("import sys, types\n"
+             "def probe():\n"
+             "    loaded = 'numpy' in sys.modules\n"
+             "    import torch\n"
+             "    print(torch.backends.cpu.get_cpu_capability(), loaded)\n"
+             "sys.modules['sianms_cli.cli'] = types.SimpleNamespace(main=probe)\n"
+             "from sianms_cli.entry import main\n"
+             "main()\n")
+    printed = subprocess.run([sys.executable, "-c", probe], env=environment, capture_output=True, text=True,
+                             check=True).stdout.split()
+    assert printed == ["AVX2", "False"]
