@@ -6,6 +6,7 @@ import functools
 import os
 import re
 import signal
+from pathlib import Path
 from typing import Callable
 
 import typer
@@ -128,6 +129,19 @@ def describe_out_of_memory(error: BaseException) -> str:
     return f"out of memory ({asked.group(0).strip()})" if asked else "out of memory"
 
 
+def home_expanded(value: object) -> object:
+    """A path (or list of paths) with a leading ``~`` or ``~user`` made the home folder's, as the
+    shell does for ``--out ~/x`` but not for ``--out=~/x``: a folder named ``~`` is never wanted."""
+    if isinstance(value, list) and all(isinstance(item, Path) for item in value):
+        return [home_expanded(item) for item in value]
+    if not isinstance(value, Path):
+        return value
+    try:
+        return value.expanduser()
+    except RuntimeError:  # ~nobody-here/x
+        raise SianmsError(f"{value}: no home folder is known for {value.parts[0]}") from None
+
+
 def command(name: str, group: typer.Typer | None = None) -> Callable[[Callable], Callable]:
     """Register a subcommand (of ``group``, default the root) whose failures end in one
     ``error:`` line, never a traceback.
@@ -136,7 +150,8 @@ def command(name: str, group: typer.Typer | None = None) -> Callable[[Callable],
     be) exits with code 2; running out of memory with 1 (as a worker killed for it); an
     interrupt with 130 (SIGINT) or 143 (SIGTERM), after the library's cleanup has run. Under torchrun every rank stops with the same code, but only
     rank 0 says it was interrupted (torchrun signals them all at once), and another rank's
-    error line names its rank (it may be its own: a shard only it reads).
+    error line names its rank (it may be its own: a shard only it reads). A path that starts
+    with ``~`` is taken from the home folder (:func:`home_expanded`).
     """
 
     def register(function: Callable) -> Callable:
@@ -145,7 +160,7 @@ def command(name: str, group: typer.Typer | None = None) -> Callable[[Callable],
             rank = follower_rank()
             prefix = "error: " if rank is None else f"error: rank {rank}: "
             try:
-                return function(*args, **kwargs)
+                return function(*args, **{name: home_expanded(value) for name, value in kwargs.items()})
             except SianmsError as error:
                 typer.echo(f"{prefix}{error}", err=True)
                 raise typer.Exit(error.exit_code) from None

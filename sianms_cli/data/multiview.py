@@ -302,12 +302,9 @@ def build_union_shards(cache: str | Path, folder: str | Path, selection: Frustum
         {shard file name: union frustums in its file}, in shard order.
     """
     from sianms_cli.nuscenes.fingerprint import dataset_fingerprint
-    from sianms_cli.nuscenes.loader import NuScenesDB
+    from sianms_cli.nuscenes.loader import NuScenesDB, version_folder
 
-    table_root = Path(settings.dataroot) / settings.version
-    if not table_root.is_dir():
-        raise DataFormatError(table_root, "version folder not found (expected <dataroot>/<version>/)")
-    if dataset_fingerprint(table_root) != settings.dataset_sha256:
+    if dataset_fingerprint(version_folder(settings.dataroot, settings.version)) != settings.dataset_sha256:
         raise SianmsError(f"--dataroot {settings.dataroot}: not the dataset the cache {cache} was "
                           "prepared from (its tables' fingerprint differs)")
     folder = Path(folder)

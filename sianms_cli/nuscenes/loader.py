@@ -166,8 +166,13 @@ class _ValueRule(NamedTuple):
     expectation: str
 
 
-def _all_positive(column: np.ndarray) -> np.ndarray:
-    return (column > 0).all(axis=1)
+MAX_BOX_SIZE = 1000.0
+"""Metres: no annotated object is larger; a size past it is a unit or typing slip, and near
+float64's range its corners would overflow."""
+
+
+def _box_sizes(column: np.ndarray) -> np.ndarray:
+    return ((column > 0) & (column <= MAX_BOX_SIZE)).all(axis=1)
 
 
 def _non_negative(column: np.ndarray) -> np.ndarray:
@@ -192,7 +197,7 @@ _COUNT_RULE = _ValueRule(_non_negative, "a count of 0 or more")
 _VALUE_RULES: dict[tuple[str, str], _ValueRule] = {
     ("calibrated_sensor", "rotation"): _ROTATION_RULE,
     ("ego_pose", "rotation"): _ROTATION_RULE,
-    ("sample_annotation", "size"): _ValueRule(_all_positive, "3 sizes greater than 0"),
+    ("sample_annotation", "size"): _ValueRule(_box_sizes, f"3 sizes greater than 0 and at most {MAX_BOX_SIZE:,.0f} m"),
     ("sample_annotation", "rotation"): _ROTATION_RULE,
     ("sample_annotation", "num_lidar_pts"): _COUNT_RULE,
     ("sample_annotation", "num_radar_pts"): _COUNT_RULE,
@@ -511,6 +516,14 @@ class Table:
 # --------------------------------------------------------------------------- database
 
 
+def version_folder(dataroot: str | Path, version: str) -> Path:
+    """``<dataroot>/<version>/``, the folder of the 13 tables; DataFormatError where it is not one."""
+    folder = Path(dataroot) / check_version_name(version)
+    if not folder.is_dir():
+        raise DataFormatError(folder, "version folder not found (expected <dataroot>/<version>/)")
+    return folder
+
+
 class NuScenesDB:
     """The 13 tables of ``<dataroot>/<version>/``, indexed, with the devkit's reverse links.
 
@@ -520,12 +533,8 @@ class NuScenesDB:
 
     def __init__(self, dataroot: str | Path, version: str) -> None:
         self.dataroot = Path(dataroot)
-        self.version = check_version_name(version)
-        self.table_root = self.dataroot / version
-        if not self.table_root.is_dir():
-            raise DataFormatError(
-                self.table_root, "version folder not found (expected <dataroot>/<version>/)"
-            )
+        self.table_root = version_folder(dataroot, version)
+        self.version = version
         paths = {name: self.table_root / f"{name}.json" for name in TABLE_NAMES}
         missing = [name for name in TABLE_NAMES if not paths[name].is_file()]
         if missing:

@@ -190,3 +190,20 @@ def test_running_out_of_memory_is_one_error_line_with_exit_code_1():
     assert python_side.exit_code == 1 and python_side.stderr == "error: out of memory\n"
     bug = runner.invoke(group, ["allocate", "0"])
     assert isinstance(bug.exception, RuntimeError)  # anything else keeps its traceback
+
+
+def test_a_path_that_starts_with_a_tilde_is_the_home_folders(tmp_path, monkeypatch):
+    # `--dataroot=~/data`: the shell leaves the tilde as it is; a folder named `~` is never wanted.
+    from pathlib import Path
+
+    from sianms_cli.cli._app import home_expanded
+
+    monkeypatch.setenv("HOME", str(tmp_path))
+    result = runner.invoke(app, ["info", "--dataroot=~/data", "--quiet"])
+    assert (result.exit_code, result.output) == (2, f"error: {tmp_path}/data/v1.0-mini: version folder not "
+                                                    "found (expected <dataroot>/<version>/)\n")
+    assert home_expanded([Path("~/a"), Path("b")]) == [tmp_path / "a", Path("b")]
+    assert home_expanded("~/text") == "~/text"  # only paths
+    unknown = runner.invoke(app, ["info", "--dataroot", "~nobody-sianms-knows/data", "--quiet"])
+    assert (unknown.exit_code, unknown.output) == (
+        2, "error: ~nobody-sianms-knows/data: no home folder is known for ~nobody-sianms-knows\n")

@@ -270,13 +270,15 @@ def test_nan_is_read_then_named_by_record_and_field(tiny_dataroot, rewrite_table
         "expected a list of 3 finite numbers, got [nan, 2.0, 0.5] (list)")
 
 
+_SIZE_PROBLEM = "expected 3 sizes greater than 0 and at most 1,000 m, got "
 _ROTATION_PROBLEM = ("expected a quaternion that can be normalised "
                      "(largest |component| in [1e-150, 1e+150]), got ")
 
 
 @pytest.mark.parametrize("table, row, field, value, problem", [
-    ("sample_annotation", 1, "size", [-1, 2, 3], "expected 3 sizes greater than 0, got [-1, 2, 3]"),
-    ("sample_annotation", 2, "size", [1.5, 0.0, 3], "expected 3 sizes greater than 0, got [1.5, 0.0, 3]"),
+    ("sample_annotation", 1, "size", [-1, 2, 3], _SIZE_PROBLEM + "[-1, 2, 3]"),
+    ("sample_annotation", 2, "size", [1.5, 0.0, 3], _SIZE_PROBLEM + "[1.5, 0.0, 3]"),
+    ("sample_annotation", 2, "size", [1e308, 2.0, 1.5], _SIZE_PROBLEM + "[1e+308, 2.0, 1.5]"),
     ("sample_annotation", 0, "num_lidar_pts", -500, "expected a count of 0 or more, got -500"),
     ("sample_annotation", 5, "num_radar_pts", -1, "expected a count of 0 or more, got -1"),
     ("sample_annotation", 3, "rotation", [0, 0, 0, 0], _ROTATION_PROBLEM + "[0, 0, 0, 0]"),
