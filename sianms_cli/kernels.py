@@ -2,14 +2,15 @@
 AVX2, so a seed gives the same bytes on AVX2 and AVX-512 machines.
 
 Each library picks its kernels by the CPU when it loads, and its AVX-512 kernels round otherwise
-than its AVX2 ones: OpenBLAS's (numpy's matrix products: the synthetic dataset's tables differ
-in their last bits), torch's ATen, oneDNN and MKL kernels and numpy's own float32 loops (both
-trainings). Measured on an AMD EPYC with AVX-512: with the five settings of :data:`AVX2_KERNELS`
-the quick demo's dataset, caches, both checkpoints and every Table I cell equal an AVX2-only
-EPYC's to the bit; with any one of them left out they do not (README, "The CI gate"). The
-settings are read once, when each library loads, so :func:`use_avx2_kernels` runs before numpy
-and torch are imported: first thing in the ``sianms`` executable, whose worker processes and
-torchrun ranks inherit them.
+than its AVX2 ones. Measured on an AMD EPYC with AVX-512 against an AVX2-only EPYC (README, "The
+CI gate"): OpenBLAS's kernels decide the dataset (numpy's matrix products in
+``calibrated_sensor``), MKL's the siamese network, ATen's and numpy's own loops Frustum
+PointNets; with every setting of :data:`AVX2_KERNELS` the quick demo's dataset, caches, both
+checkpoints and Table I cells are equal to the bit. oneDNN's setting changed nothing there; it
+is kept because torch may hand CPU convolutions to oneDNN, which picks kernels by the CPU too. The settings are read
+once, when each library loads, so :func:`use_avx2_kernels` runs before numpy and torch are
+imported: first thing in the ``sianms`` executable, whose worker processes and torchrun ranks
+inherit them.
 
 The CPU maker still matters: MKL picks kernels by maker, and its reproducible mode
 (``MKL_CBWR``) is documented for Intel CPUs only.
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import os
 import platform
+import sys
 from pathlib import Path
 from typing import MutableMapping
 
@@ -62,6 +64,9 @@ def use_avx2_kernels(environ: MutableMapping[str, str] = os.environ, cpuinfo: st
 
     A setting the user made is kept, and :data:`NATIVE_SWITCH` set to 1 asks for none; on
     another CPU nothing is asked (AVX2 kernels would not run there). Returns what it set.
+
+    Raises RuntimeError when it would set this process's environment after numpy or torch has
+    loaded: they would keep the kernels they chose, while the record said AVX2.
     """
     machine = platform.machine() if machine is None else machine
     if environ.get(NATIVE_SWITCH) == "1" or machine not in ("x86_64", "AMD64"):
@@ -69,6 +74,10 @@ def use_avx2_kernels(environ: MutableMapping[str, str] = os.environ, cpuinfo: st
     if cpu_facts(cpuinfo)[1] not in ("AVX2", "AVX512"):
         return {}
     added = {name: value for name, value in AVX2_KERNELS.items() if name not in environ}
+    loaded = [module for module in ("numpy", "torch") if module in sys.modules]
+    if added and loaded and environ is os.environ:
+        raise RuntimeError(f"use_avx2_kernels() must run before numpy and torch are imported; already "
+                           f"imported: {', '.join(loaded)}")
     environ.update(added)
     return added
 

@@ -45,6 +45,17 @@ def test_native_kernels_on_request():
 
 
 @pytest.mark.skipif(not ON_AVX2_CPU, reason="an x86-64 CPU with AVX2")
+def test_asking_after_numpy_loaded_is_refused_not_recorded_as_done():
+    environment = {name: value for name, value in os.environ.items() if name not in AVX2_KERNELS}
+    environment.pop(NATIVE_SWITCH, None)
+    late = "import numpy\nfrom sianms_cli.kernels import use_avx2_kernels\nuse_avx2_kernels()\n"
+    done = subprocess.run([sys.executable, "-c", late], env=environment, capture_output=True, text=True)
+    assert done.returncode == 1
+    assert done.stderr.strip().splitlines()[-1] == (
+        "RuntimeError: use_avx2_kernels() must run before numpy and torch are imported; already imported: numpy")
+
+
+@pytest.mark.skipif(not ON_AVX2_CPU, reason="an x86-64 CPU with AVX2")
 def test_this_session_runs_torchs_avx2_kernels_as_sianms_does():
     import torch
 
