@@ -17,6 +17,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 import signal
+import sys
 import threading
 import time
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
@@ -66,6 +67,23 @@ def interrupt_on_signals() -> None:
     exception (a C callback, an ``except`` around an import) cannot make a run look finished."""
     signal.signal(signal.SIGINT, _raise_interrupt)
     signal.signal(signal.SIGTERM, _raise_interrupt)
+
+
+def exit_on_signals(code: int) -> None:
+    """From now on SIGINT and SIGTERM end the process at once with ``code``: the command has
+    finished and said how. A signal during interpreter shutdown (torchrun stopping every rank
+    once one failed) would otherwise raise inside a library's finaliser and print its traceback."""
+
+    def exit_now(signum: int, frame: Any) -> None:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):  # closed, or a broken pipe: nothing more can be said
+                pass
+        os._exit(code)
+
+    signal.signal(signal.SIGINT, exit_now)
+    signal.signal(signal.SIGTERM, exit_now)
 
 
 def signal_received() -> int | None:

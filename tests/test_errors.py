@@ -115,3 +115,34 @@ def test_a_signal_while_the_command_line_starts_is_one_line(signum, code):
     name = signal.Signals(signum).name
     assert (done.returncode, done.stderr) == (code, f"interrupted ({name}) while starting; nothing was written\n")
     assert 'sianms = "sianms_cli.entry:main"' in (Path(__file__).parents[1] / "pyproject.toml").read_text()
+
+
+@pytest.mark.parametrize("world, error, lost", [
+    ("2", RuntimeError("[gloo/transport/tcp/pair.cc:537] Read error [127.0.0.1]:1: Connection reset by peer."), True),
+    ("2", type("DistBackendError", (RuntimeError,), {})("NCCL communicator was aborted"), True),
+    ("2", RuntimeError("mat1 and mat2 shapes cannot be multiplied"), False),
+    ("1", RuntimeError("Connection reset by peer"), False),
+])
+def test_a_collective_that_lost_another_rank_is_one_error_line_with_exit_code_1(monkeypatch, world, error, lost):
+    from typer.testing import CliRunner
+
+    monkeypatch.setenv("WORLD_SIZE", world)
+    monkeypatch.setenv("RANK", "0")
+    result = CliRunner().invoke(probe_app(error), ["fail"])
+    if lost:
+        assert (result.exit_code, result.output) == (1, "error: another process of this torchrun run stopped; its "
+                                                         "own lines or torchrun's failure summary say why\n")
+    else:
+        assert result.exception is error
+
+
+def test_a_signal_after_the_command_ended_exits_at_once_with_its_code():
+    """torchrun stops every rank once one failed: a SIGTERM that lands in a library's finaliser,
+    after the command said how it ended, must not raise there and print a traceback."""
+    script = ("import os, signal, time\n"
+              "from sianms_cli.processes import exit_on_signals\n"
+              "exit_on_signals(3)\n"
+              "os.kill(os.getpid(), signal.SIGTERM)\n"
+              "time.sleep(30)\n")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert (done.returncode, done.stderr) == (3, "")

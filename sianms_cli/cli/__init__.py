@@ -6,7 +6,7 @@ import typer
 from typer.main import get_command
 
 from sianms_cli.cli._app import app, exit_code_after_signals
-from sianms_cli.processes import interrupt_on_signals, signal_received
+from sianms_cli.processes import exit_on_signals, interrupt_on_signals, signal_received
 from sianms_cli.cli import demo, evaluate, info, metrics, prepare, report, synth, train  # noqa: F401  (importing registers the subcommands)
 
 
@@ -15,7 +15,8 @@ def main() -> None:
     unknown or missing option) ends, as every other bad input, in one ``error:`` line and
     exit code 2; a bare group (``sianms``, ``sianms train``) prints its help, then that line.
     SIGINT and SIGTERM end in 130 and 143 with one ``interrupted`` line, wherever they land
-    (:func:`exit_code_after_signals`)."""
+    (:func:`exit_code_after_signals`); once the command has ended, they end the process at once
+    with the code it chose (:func:`~sianms_cli.processes.exit_on_signals`)."""
     interrupt_on_signals()
     try:
         code = get_command(app).main(prog_name="sianms", standalone_mode=False)
@@ -34,4 +35,6 @@ def main() -> None:
         code = 1
     except KeyboardInterrupt:  # one that came before a command's own handling, or after it
         code = 130
-    sys.exit(exit_code_after_signals(code if isinstance(code, int) else 0))
+    code = exit_code_after_signals(code if isinstance(code, int) else 0)
+    exit_on_signals(code)
+    sys.exit(code)

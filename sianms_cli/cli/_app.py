@@ -142,12 +142,22 @@ def home_expanded(value: object) -> object:
         raise SianmsError(f"{value}: no home folder is known for {value.parts[0]}") from None
 
 
+def is_peer_lost(error: BaseException) -> bool:
+    """Whether a collective failed because another rank of this torchrun run is gone (killed,
+    out of memory, its own error): torch's distributed errors, or gloo's socket read failing."""
+    if int(os.environ.get("WORLD_SIZE", "1")) <= 1:
+        return False
+    return (type(error).__name__ in ("DistBackendError", "DistNetworkError")
+            or any(words in str(error) for words in ("Connection reset by peer", "Connection closed by peer")))
+
+
 def command(name: str, group: typer.Typer | None = None) -> Callable[[Callable], Callable]:
     """Register a subcommand (of ``group``, default the root) whose failures end in one
     ``error:`` line, never a traceback.
 
     A user error or an OS error (read-only folder, disk full, a folder where a file should
-    be) exits with code 2; running out of memory with 1 (as a worker killed for it); an
+    be) exits with code 2; running out of memory, or losing another rank of a torchrun run, with 1
+    (as a worker killed for it); an
     interrupt with 130 (SIGINT) or 143 (SIGTERM), after the library's cleanup has run. Under torchrun every rank stops with the same code, but only
     rank 0 says it was interrupted (torchrun signals them all at once), and another rank's
     error line names its rank (it may be its own: a shard only it reads). A path that starts
@@ -168,9 +178,13 @@ def command(name: str, group: typer.Typer | None = None) -> Callable[[Callable],
                 typer.echo(f"{prefix}{describe_os_error(error)}", err=True)
                 raise typer.Exit(2) from None
             except (MemoryError, RuntimeError) as error:
-                if not is_out_of_memory(error):
+                if is_out_of_memory(error):
+                    typer.echo(f"{prefix}{describe_out_of_memory(error)}", err=True)
+                elif is_peer_lost(error):
+                    typer.echo(f"{prefix}another process of this torchrun run stopped; its own lines or "
+                               "torchrun's failure summary say why", err=True)
+                else:
                     raise
-                typer.echo(f"{prefix}{describe_out_of_memory(error)}", err=True)
                 raise typer.Exit(1) from None
             except KeyboardInterrupt as interrupt:
                 terminated = isinstance(interrupt, Terminated)

@@ -4,8 +4,10 @@ process with the same two streams trains."""
 import json
 import math
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -129,3 +131,45 @@ def test_fpointnet_in_bf16_on_two_gloo_processes_takes_the_first_step_as_one(two
     assert two.extra["precision"] == one.extra["precision"] == "bf16"
     for term in ("total", "mask", "center", "corner", "heading_class", "size_residual"):
         assert two.history[0][f"train_{term}"] == pytest.approx(one.history[0][f"train_{term}"], rel=1e-2)
+
+
+def _rank_process(parent: int, rank: int) -> int | None:
+    """The pid of the torchrun worker of ``rank`` under the launcher ``parent``, once it runs."""
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            if int(stat.read_text().rsplit(")", 1)[1].split()[1]) != parent:
+                continue
+            if f"RANK={rank}".encode() in (stat.parent / "environ").read_bytes().split(b"\0"):
+                return int(stat.parent.name)
+        except (OSError, ValueError, IndexError):
+            continue
+    return None
+
+
+def test_a_rank_killed_mid_run_leaves_the_other_one_error_line_and_a_loadable_checkpoint(two_shard_cache, tmp_path):
+    """Rank 1 killed (the OOM killer, a scheduler) after the first checkpoint: rank 0's collective
+    fails, and it says so in one line, with no traceback of its own, then exits when torchrun
+    stops it; the last checkpoint is whole, so --resume can go on from it."""
+    out = tmp_path / "run"
+    command = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",
+               "--log-dir", str(tmp_path / "torchrun-logs"), "-m", "sianms_cli", "train", "fpointnet",
+               "--cache", str(two_shard_cache), *FPOINTNET, "--epochs", "500", "--out", str(out)]
+    launcher = subprocess.Popen(command, env={**os.environ, "OMP_NUM_THREADS": "1"}, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "checkpoint.pt").is_file() and time.monotonic() < deadline and launcher.poll() is None:
+            time.sleep(0.2)
+        victim = _rank_process(launcher.pid, 1)
+        assert victim is not None and (out / "checkpoint.pt").is_file(), "the run never reached its first checkpoint"
+        os.kill(victim, signal.SIGKILL)
+        _, stderr = launcher.communicate(timeout=120)
+    finally:
+        if launcher.poll() is None:
+            os.killpg(launcher.pid, signal.SIGKILL)
+            launcher.communicate()
+    assert launcher.returncode != 0
+    own = [line for line in stderr.splitlines() if line.startswith(("error:", "[rank0]", "Exception ignored"))]
+    assert own == ["error: another process of this torchrun run stopped; its own lines or torchrun's failure "
+                   "summary say why"]
+    assert load_checkpoint(out / "checkpoint.pt").epoch >= 1
