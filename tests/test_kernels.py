@@ -16,6 +16,11 @@ OLD = "vendor_id\t: GenuineIntel\nflags\t\t: sse2 sse4_2 avx\n"
 ON_AVX2_CPU = cpu_facts()[1] in ("AVX2", "AVX512") and platform.machine() == "x86_64"
 
 
+def unsettled_environment() -> dict[str, str]:
+    """This environment without any kernel setting: what a shell that never ran sianms passes on."""
+    return {name: value for name, value in os.environ.items() if name not in (*AVX2_KERNELS, NATIVE_SWITCH)}
+
+
 @pytest.mark.parametrize("cpuinfo", [XEON, EPYC_ZEN3])
 def test_an_avx2_cpu_is_asked_for_avx2_kernels_by_every_library(cpuinfo):
     environ = {}
@@ -46,8 +51,7 @@ def test_native_kernels_on_request():
 
 @pytest.mark.skipif(not ON_AVX2_CPU, reason="an x86-64 CPU with AVX2")
 def test_asking_after_numpy_loaded_is_refused_not_recorded_as_done():
-    environment = {name: value for name, value in os.environ.items() if name not in AVX2_KERNELS}
-    environment.pop(NATIVE_SWITCH, None)
+    environment = unsettled_environment()
     late = "import numpy\nfrom sianms_cli.kernels import use_avx2_kernels\nuse_avx2_kernels()\n"
     done = subprocess.run([sys.executable, "-c", late], env=environment, capture_output=True, text=True)
     assert done.returncode == 1
@@ -66,8 +70,7 @@ def test_this_session_runs_torchs_avx2_kernels_as_sianms_does():
 def test_the_sianms_executable_asks_before_numpy_and_torch_load():
     # `sianms` started with none of the settings made, its command line replaced by a probe: numpy
     # is not loaded yet when the command line starts, and torch then runs its AVX2 kernels.
-    environment = {name: value for name, value in os.environ.items() if name not in AVX2_KERNELS}
-    environment.pop(NATIVE_SWITCH, None)
+    environment = unsettled_environment()
     probe = ("import sys, types\n"
              "def probe():\n"
              "    loaded = 'numpy' in sys.modules\n"
