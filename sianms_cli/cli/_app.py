@@ -43,8 +43,20 @@ def command_group(name: str, help: str) -> typer.Typer:
 
 
 def _print_version(value: bool) -> None:
+    """The version, then the numeric platform that decides an output's last bits (for a bug report)."""
     if value:
-        typer.echo(f"sianms {__version__}")
+        from importlib import metadata
+
+        from sianms_cli.provenance import numeric_platform
+
+        record = numeric_platform()
+        try:
+            torch = metadata.version("torch")
+        except metadata.PackageNotFoundError:
+            torch = "not installed"
+        typer.echo(f"sianms {__version__}\n"
+                   f"{record['cpu_vendor']} {record['vector_width']} CPU, {record['kernels']} kernels; "
+                   f"Python {record['python']}, numpy {record['numpy']}, numba {record['numba']}, torch {torch}")
         raise typer.Exit()
 
 

@@ -13,10 +13,15 @@ from sianms_cli.reporting.dataset_summary import _synth_marker_lines
 runner = CliRunner()
 
 
-def test_version():
+def test_version_then_the_numeric_platform():
+    from importlib import metadata
+
     result = runner.invoke(app, ["--version"])
+    here = numeric_platform()
     assert result.exit_code == 0
-    assert result.output.strip() == f"sianms {__version__}"
+    assert result.output == (f"sianms {__version__}\n{here['cpu_vendor']} {here['vector_width']} CPU, "
+                             f"{here['kernels']} kernels; Python {here['python']}, numpy {here['numpy']}, "
+                             f"numba {here['numba']}, torch {metadata.version('torch')}\n")
 
 
 def test_python_dash_m_runs_the_cli():
