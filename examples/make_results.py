@@ -36,7 +36,11 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
+from sianms_cli.kernels import use_avx2_kernels
+
+use_avx2_kernels()  # before numpy loads: the same bytes as `sianms` writes on any AVX2 machine
+
+import numpy as np  # noqa: E402
 
 from sianms_cli.errors import SianmsError
 from sianms_cli.evaluation.boxes import NO_ATTRIBUTE
