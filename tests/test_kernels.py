@@ -59,7 +59,8 @@ def test_asking_after_numpy_loaded_is_refused_not_recorded_as_done():
         "RuntimeError: use_avx2_kernels() must run before numpy and torch are imported; already imported: numpy")
 
 
-@pytest.mark.skipif(not ON_AVX2_CPU, reason="an x86-64 CPU with AVX2")
+@pytest.mark.skipif(not ON_AVX2_CPU or os.environ.get(NATIVE_SWITCH) == "1",
+                    reason="an x86-64 CPU with AVX2, AVX2 kernels not turned off")
 def test_this_session_runs_torchs_avx2_kernels_as_sianms_does():
     import torch
 
