@@ -146,11 +146,6 @@ def scene_settings(config: EvalConfig, cache_config: dict[str, Any], dis_thr: fl
         max_depth=float("inf") if max_depth is None else float(max_depth))
 
 
-def _run_file(run: str) -> Path:
-    path = Path(run)
-    return path / "checkpoint.pt" if path.is_dir() else path
-
-
 @dataclass(frozen=True, eq=False)
 class Models:
     """The trained runs, each checkpoint read once.
@@ -170,11 +165,11 @@ class Models:
 
 def load_models(config: EvalConfig) -> Models:
     """The trained runs of ``config`` on its device (checked first), each checkpoint read once."""
-    from sianms_cli.training.run import checkpoint_fingerprint, choose_device, load_checkpoint
+    from sianms_cli.training.run import checkpoint_file, checkpoint_fingerprint, choose_device, load_checkpoint
     from sianms_cli.training.siamese import encoder_from_checkpoint
 
     device = str(choose_device(config.device))
-    siamese_path, fpointnet_path = _run_file(config.siamese), _run_file(config.fpointnet)
+    siamese_path, fpointnet_path = checkpoint_file(config.siamese), checkpoint_file(config.fpointnet)
     siamese, fpointnet = load_checkpoint(siamese_path, "siamese"), load_checkpoint(fpointnet_path, "fpointnet")
     encoder, dis_thr = encoder_from_checkpoint(siamese, siamese_path, device)
     return Models(predictor=FPointNetPredictor(fpointnet, fpointnet_path, device), encoder=encoder,

@@ -221,6 +221,12 @@ def save_checkpoint(path: str | Path, checkpoint: Checkpoint) -> Path:
     return write_bytes(path, buffer.getvalue())
 
 
+def checkpoint_file(run: str | Path) -> Path:
+    """The checkpoint of ``run``: a run folder's ``checkpoint.pt``, or ``run`` itself when it names a file."""
+    path = Path(run)
+    return path / CHECKPOINT if path.is_dir() else path
+
+
 def load_checkpoint(path: str | Path, kind: str | None = None) -> Checkpoint:
     """Read a checkpoint with ``torch.load(weights_only=True)``: nothing is unpickled as code.
 

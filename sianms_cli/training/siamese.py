@@ -68,7 +68,7 @@ from sianms_cli.models.losses import double_margin_loss, pair_distances, positiv
 from sianms_cli.models.siamese import SiameseEncoder, parameter_count
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.training.precision import MixedPrecision, check_precision, resolve_precision
-from sianms_cli.training.run import CHECKPOINT, Checkpoint, RunFolder, choose_device, epoch_generator, \
+from sianms_cli.training.run import Checkpoint, RunFolder, checkpoint_file, choose_device, epoch_generator, \
     finish_distributed, init_distributed, load_checkpoint, load_state, plain, row_counts, seed_everything, \
     set_learning_rate, step_decay, sum_over_ranks, writes_outputs
 
@@ -478,9 +478,7 @@ def load_encoder(run: str | Path, device: str | torch.device = "cpu") -> tuple[S
         foreign or missing keys), another model's checkpoint, weights that do not fit the
         config it stores, or no ``dis_thr``. The file is read with ``weights_only=True``.
     """
-    path = Path(run)
-    if path.is_dir():
-        path = path / CHECKPOINT
+    path = checkpoint_file(run)
     return encoder_from_checkpoint(load_checkpoint(path, kind=KIND), path, device)
 
 
