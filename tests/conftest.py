@@ -19,11 +19,16 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
     for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(_variable, "1")
 
+import pytest  # noqa: E402
+
 from sianms_cli.kernels import use_avx2_kernels  # noqa: E402  before numpy and torch load, as `sianms` does
 
-use_avx2_kernels()
-
-import pytest
+try:
+    use_avx2_kernels()
+except RuntimeError as error:  # a plugin pytest loaded on its own imported numpy first
+    raise pytest.UsageError(f"{error}. A pytest plugin loaded them: run with PYTEST_DISABLE_PLUGIN_AUTOLOAD=1 "
+                            "-p xdist (the suite needs no other plugin), or SIANMS_NATIVE_KERNELS=1 to test "
+                            "with this CPU's native kernels") from None
 
 from sianms_cli.synth.generate import SynthConfig, run as run_synth
 

@@ -5,6 +5,7 @@ import os
 import platform
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -83,3 +84,15 @@ def test_the_sianms_executable_asks_before_numpy_and_torch_load():
     printed = subprocess.run([sys.executable, "-c", probe], env=environment, capture_output=True, text=True,
                              check=True).stdout.split()
     assert printed == ["AVX2", "False"]
+
+
+@pytest.mark.skipif(not ON_AVX2_CPU, reason="an x86-64 CPU with AVX2")
+def test_a_pytest_plugin_that_loads_numpy_first_gets_one_usage_line(tmp_path):
+    # As a plugin pytest loads on its own may do (one in the GPU image did): numpy in before the conftest.
+    (tmp_path / "numpy_first.py").write_text("import numpy\n")
+    environment = {**unsettled_environment(), "PYTHONPATH": str(tmp_path)}
+    done = subprocess.run([sys.executable, "-m", "pytest", "-p", "numpy_first", "-p", "no:cacheprovider",
+                           "--collect-only", "-q", "tests/test_kernels.py"], env=environment, capture_output=True,
+                          text=True, cwd=Path(__file__).parents[1])
+    assert done.returncode == pytest.ExitCode.USAGE_ERROR
+    assert "PYTEST_DISABLE_PLUGIN_AUTOLOAD=1 -p xdist" in done.stderr and "Traceback" not in done.stderr

@@ -31,7 +31,7 @@ from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.pipelines.matching import pair_quality
 from sianms_cli.pipelines.methods import (GATED_SIANMS, HYBRID, MATCHERS, ORACLE, SIANMS, AllBoxes, kept_matches,
                                          match_kind, select, split_name)
-from sianms_cli.pipelines.scene import BOXES_SCHEMA
+from sianms_cli.pipelines.scene import BOXES_SCHEMA, VECTOR_WIDTHS
 from sianms_cli.pipelines.scoring import RegionFigures
 from sianms_cli.progress import Progress
 
@@ -55,10 +55,15 @@ def read_boxes(paths: list[Path], sample_tokens: list[str]) -> AllBoxes:
         raise DataFormatError(paths[0].parent, f"boxes of sample {unknown}, which is not in the split",
                               field="sample_token")
 
-    def vectors(name: str, width: int = 3) -> np.ndarray:
+    def vectors(name: str) -> np.ndarray:
         column = table[name].combine_chunks()
+        width = VECTOR_WIDTHS[name]
         values = np.full((len(column), width), np.nan)
         valid = column.is_valid().to_numpy(zero_copy_only=False)
+        lengths = pc.list_value_length(column).fill_null(width).to_numpy(zero_copy_only=False)
+        if (lengths != width).any():
+            raise DataFormatError(paths[0].parent, f"a row whose {name} holds {lengths[lengths != width][0]} values, "
+                                  f"not {width}", field=name)
         values[valid] = column.drop_null().flatten().to_numpy().reshape(-1, width)
         return values
 
@@ -73,7 +78,7 @@ def read_boxes(paths: list[Path], sample_tokens: list[str]) -> AllBoxes:
         yaw=table["yaw"].to_numpy(zero_copy_only=False).astype(np.float64),
         dismissed=table["dismissed"].to_numpy(zero_copy_only=False).astype(bool),
         correct=table["correct"].fill_null(False).to_numpy(zero_copy_only=False).astype(bool),
-        wedges=vectors("wedges", 12))
+        wedges=vectors("wedges"))
 
 
 def box_table(boxes: AllBoxes, rows: np.ndarray, default_attribute: dict[str, str]) -> np.ndarray:

@@ -79,11 +79,14 @@ BOXES_SCHEMA = pa.schema([
     ("dismissed", pa.bool_()),  # a match whose frustums do not overlap (no box)
     ("correct", pa.bool_()),  # a match of one ground-truth instance (scoring only); null for single
     ("num_points", pa.int32()),  # points in the frustum (union for a match)
-    ("translation", pa.list_(pa.float64(), 3)),  # global frame; null when dismissed
-    ("size", pa.list_(pa.float64(), 3)),  # (w, l, h)
+    # Vectors are variable-size lists, not fixed-size ones: pyarrow before 26 cannot write a null
+    # fixed-size list to Parquet (19-24) or read one back (25).
+    ("translation", pa.list_(pa.float64())),  # 3 values, global frame; null when dismissed
+    ("size", pa.list_(pa.float64())),  # (w, l, h)
     ("yaw", pa.float64()),
-    ("wedges", pa.list_(pa.float64(), 12)),  # a match's two frustum wedges, global (x, y) x 3 corners each
+    ("wedges", pa.list_(pa.float64())),  # a match's two frustum wedges, global (x, y) x 3 corners each: 12 values
 ])
+VECTOR_WIDTHS = {"translation": 3, "size": 3, "wedges": 12}
 
 
 @dataclass(frozen=True)
@@ -389,6 +392,14 @@ def _frustum_points(table: pa.Table, detection_ids: pa.ChunkedArray) -> tuple[np
     return rot_angle, RaggedPoints(points.astype(np.float64), offsets[where], np.where(found, counts[where], 0))
 
 
+def vector_column(rows: np.ndarray, valid: np.ndarray) -> pa.ListArray:
+    """The rows of an (n, k) array as a list column, null where not ``valid``; a null row holds no
+    values, which every pyarrow the package supports writes and reads."""
+    lengths = np.where(valid, rows.shape[1], 0)
+    offsets = pa.array(np.concatenate([[0], np.cumsum(lengths)]).astype(np.int32))
+    return pa.ListArray.from_arrays(offsets, pa.array(rows[valid].ravel(), pa.float64()), mask=pa.array(~valid))
+
+
 def _rows(records: SceneRecords, position: int, kind: str, inputs: SampleInputs, first: np.ndarray,
           second: np.ndarray | None, boxes: GlobalBoxes, *, counts: np.ndarray, distance: np.ndarray | None = None,
           dismissed: np.ndarray | None = None, wedges: np.ndarray | None = None) -> pa.Table:
@@ -414,9 +425,9 @@ def _rows(records: SceneRecords, position: int, kind: str, inputs: SampleInputs,
         "dismissed": np.zeros(count, bool) if dismissed is None else dismissed,
         "correct": pa.array(missing if correct is None else correct.tolist(), pa.bool_()),
         "num_points": counts.astype(np.int32),
-        "translation": pa.array([row if ok else None for row, ok in zip(boxes.translation.tolist(), valid)],
-                                pa.list_(pa.float64(), 3)),
-        "size": pa.array([row if ok else None for row, ok in zip(boxes.size.tolist(), valid)], pa.list_(pa.float64(), 3)),
+        "translation": vector_column(boxes.translation, valid),
+        "size": vector_column(boxes.size, valid),
         "yaw": pa.array(np.where(valid, boxes.yaw, np.nan), pa.float64(), from_pandas=True),
-        "wedges": pa.array(missing if wedges is None else wedges.tolist(), pa.list_(pa.float64(), 12)),
+        "wedges": (pa.nulls(count, pa.list_(pa.float64())) if wedges is None
+                   else vector_column(wedges, np.ones(count, bool))),
     }, schema=BOXES_SCHEMA)
