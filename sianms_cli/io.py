@@ -30,7 +30,8 @@ import orjson
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
 
 PARTIAL_SUFFIX = ".partial"
-JSON_MAX_DEPTH = 1024  # orjson refuses deeper documents; the json module would overflow the stack
+JSON_MAX_DEPTH = 1024  # orjson refuses deeper documents; the json module's limit moves with Python's version
+_BRACKET_OR_STRING = re.compile(r'"(?:[^"\\]|\\.)*"|[\[\]{}]')
 T = TypeVar("T")
 _OPEN_TEMPORARIES: set[Path] = set()  # of the AtomicFiles this process is writing
 
@@ -247,21 +248,45 @@ def read_json(path: str | Path) -> Any:
 
 def decode_json(path: str | Path, data: bytes) -> Any:
     """``data`` decoded as JSON; errors name ``path`` with the line and column."""
+    too_deep = DataFormatError(path, f"invalid JSON: nested deeper than {JSON_MAX_DEPTH} levels")
     try:
         return orjson.loads(data)
-    except orjson.JSONDecodeError:
-        pass
+    except orjson.JSONDecodeError as error:
+        if "recursion" in str(error):
+            raise too_deep from None
     # orjson does not report line and column; the json module does, on the same error.
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as error:
         raise DataFormatError(path, f"not valid UTF-8 at byte {error.start}") from None
     try:
-        return json.loads(text)
+        value = json.loads(text)
     except json.JSONDecodeError as error:
         raise DataFormatError(path, f"invalid JSON at line {error.lineno}, column {error.colno}: {error.msg}") from None
     except RecursionError:
-        raise DataFormatError(path, f"invalid JSON: nested deeper than {JSON_MAX_DEPTH} levels") from None
+        raise too_deep from None
+    if nested_too_deep(text):
+        raise too_deep
+    return value
+
+
+def nested_too_deep(text: str) -> bool:
+    """Whether JSON ``text`` nests lists and objects deeper than :data:`JSON_MAX_DEPTH` (brackets
+    in strings not counted). The json module's own limit is no guide: Python 3.11 stops near
+    1,000 levels, 3.12 parsed 5,000 and 3.13 50,000 (measured). Scans only a text that holds
+    more opening brackets than the limit."""
+    if text.count("[") + text.count("{") <= JSON_MAX_DEPTH:
+        return False
+    depth = 0
+    for token in _BRACKET_OR_STRING.finditer(text):
+        bracket = token.group()
+        if bracket in ("[", "{"):
+            depth += 1
+            if depth > JSON_MAX_DEPTH:
+                return True
+        elif bracket in ("]", "}"):
+            depth -= 1
+    return False
 
 
 def sha256_of(path: str | Path) -> str:

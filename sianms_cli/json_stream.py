@@ -30,7 +30,7 @@ from typing import Any, Callable, Iterable, Iterator
 import orjson
 
 from sianms_cli.errors import DataFormatError
-from sianms_cli.io import JSON_MAX_DEPTH, decode_json, read_json
+from sianms_cli.io import JSON_MAX_DEPTH, decode_json, nested_too_deep, read_json
 
 _JSON_KINDS = {dict: "an object", list: "a list", str: "a string", bool: "a boolean",
                int: "a number", float: "a number", type(None): "null"}
@@ -255,6 +255,8 @@ class JsonStream:
             if end == len(self.buffer) and not self.eof:
                 self._fill(grow=True)  # a number or literal may go on in the next chunk
                 continue
+            if nested_too_deep(self.buffer[self.pos:end]):
+                raise self._error(f"nested deeper than {JSON_MAX_DEPTH} levels")
             self.pos = end
             return value
 

@@ -230,3 +230,13 @@ def test_a_lock_that_cannot_be_taken_leaves_only_what_was_there(tmp_path, monkey
 def test_sha256_of(tmp_path):
     (tmp_path / "x").write_bytes(b"abc")
     assert io.sha256_of(tmp_path / "x") == "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+
+
+def test_nesting_is_measured_outside_strings_on_any_python():
+    # The json module's own limit moved with Python (about 1,000 levels on 3.11, 5,000 parsed on
+    # 3.12.3, 50,000 on 3.13): the limit is counted here, brackets inside strings not counted.
+    assert not io.nested_too_deep('{"a": "' + "[" * 2000 + '"}')
+    assert not io.nested_too_deep('["\\"' + "[" * 2000 + '"]')  # an escaped quote does not end the string
+    assert not io.nested_too_deep("[" * 1024 + "]" * 1024)
+    assert io.nested_too_deep("[" * 1025 + "]" * 1025)
+    assert not io.nested_too_deep("[[]]" * 2000)  # many brackets, shallow

@@ -62,14 +62,17 @@ def _check_against(reference: dict, reports: dict) -> int:
     return compared
 
 
-def test_fixture_was_made_from_this_data(devkit_fixture, reference_folder):
-    actual = reference_script.fingerprint(reference_folder / "dataroot")
-    assert devkit_fixture["fingerprint"] == actual, (
-        "the synthetic dataroot changed since tests/fixtures/metrics/devkit_reference.json was made; "
-        "regenerate it: python scripts/devkit_metrics_reference.py fixtures")
-
-
-def test_every_number_equals_the_devkits(devkit_fixture, our_reports):
+def test_every_number_equals_the_devkits(devkit_fixture, our_reports, reference_folder):
+    # The fixture's fingerprint is of the tables it was made from. Another numpy or CPU may write
+    # them otherwise in the last digits (an H200 machine's Python 3.12 and numpy 2.5 did) with
+    # every number still equal, so a changed fingerprint is reported only beside a difference.
+    if devkit_fixture["fingerprint"] != reference_script.fingerprint(reference_folder / "dataroot"):
+        try:
+            _check_against(devkit_fixture, our_reports)
+        except AssertionError as error:
+            raise AssertionError(f"the synthetic dataroot changed since tests/fixtures/metrics/devkit_reference.json "
+                                 f"was made; regenerate it: python scripts/devkit_metrics_reference.py fixtures\n"
+                                 f"{error}") from None
     compared = _check_against(devkit_fixture, our_reports)
     # 4 cases, 15 regions, 10 classes x (4 APs + AP + 5 TP errors) + 5 + 5 + 2 means.
     assert compared >= 1700
