@@ -43,9 +43,9 @@ def measure(steps: int) -> dict[str, float]:
 
 def in_fresh_process(native: bool, steps: int) -> dict[str, float]:
     """:func:`measure` in a new process that loads numpy and torch with the chosen kernels."""
-    from sianms_cli.kernels import AVX2_KERNELS, NATIVE_SWITCH, use_avx2_kernels
+    from sianms_cli.kernels import AVX2_SETTINGS, NATIVE_SWITCH, use_avx2_kernels
 
-    environment = {name: value for name, value in os.environ.items() if name not in AVX2_KERNELS}
+    environment = {name: value for name, value in os.environ.items() if name not in AVX2_SETTINGS}
     environment.pop(NATIVE_SWITCH, None)
     if native:
         environment[NATIVE_SWITCH] = "1"

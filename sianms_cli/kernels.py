@@ -5,7 +5,7 @@ Each library picks its kernels by the CPU when it loads, and its AVX-512 kernels
 than its AVX2 ones. Measured on an AMD EPYC with AVX-512 against an AVX2-only EPYC (README, "The
 CI gate"): OpenBLAS's kernels decide the dataset (numpy's matrix products in
 ``calibrated_sensor``), MKL's the siamese network, ATen's and numpy's own loops Frustum
-PointNets; with every setting of :data:`AVX2_KERNELS` the quick demo's dataset, caches, both
+PointNets; with every setting of :func:`avx2_kernels` the quick demo's dataset, caches, both
 checkpoints and Table I cells are equal to the bit. oneDNN's setting changed nothing there; it
 is kept because torch may hand CPU convolutions to oneDNN, which picks kernels by the CPU too. The settings are read
 once, when each library loads, so :func:`use_avx2_kernels` runs before numpy and torch are
@@ -20,8 +20,10 @@ Stdlib only: this module is imported before numpy.
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import platform
+import re
 import sys
 from pathlib import Path
 from typing import MutableMapping
@@ -30,13 +32,9 @@ CPUINFO = Path("/proc/cpuinfo")
 AVX512_FLAGS = frozenset({"avx512f", "avx512cd", "avx512bw", "avx512dq", "avx512vl"})
 """What numpy's AVX512_SKX and torch's AVX512 kernels both need."""
 AVX2_FLAGS = frozenset({"avx2", "fma"})
-AVX2_KERNELS = {
-    "OPENBLAS_CORETYPE": "Haswell",  # OpenBLAS's AVX2 kernels (its Zen kernels are the same ones)
-    "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR",  # numpy 2.4 needs all three names
-    "ATEN_CPU_CAPABILITY": "avx2",
-    "ONEDNN_MAX_CPU_ISA": "AVX2",
-    "MKL_ENABLE_INSTRUCTIONS": "AVX2",
-}
+AVX2_SETTINGS = ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES", "ATEN_CPU_CAPABILITY", "ONEDNN_MAX_CPU_ISA",
+                 "MKL_ENABLE_INSTRUCTIONS")
+"""The environment variables :func:`avx2_kernels` sets."""
 NATIVE_SWITCH = "SIANMS_NATIVE_KERNELS"
 """Set to 1 to let every library pick its kernels by the CPU (faster where AVX-512 pays; other bytes)."""
 
@@ -58,6 +56,43 @@ def cpu_facts(cpuinfo: str | None = None) -> tuple[str, str]:
     return fields.get("vendor_id", "unknown"), width
 
 
+def avx2_kernels(numpy_version: tuple[int, int] | None = None) -> dict[str, str]:
+    """The settings that ask each library for its AVX2 kernels (:data:`AVX2_SETTINGS`), numpy's
+    for the numpy installed (or of ``numpy_version``)."""
+    return {
+        "OPENBLAS_CORETYPE": "Haswell",  # OpenBLAS's AVX2 kernels (its Zen kernels are the same ones)
+        "NPY_DISABLE_CPU_FEATURES": numpy_avx512_features(numpy_version or installed_numpy_version()),
+        "ATEN_CPU_CAPABILITY": "avx2",
+        "ONEDNN_MAX_CPU_ISA": "AVX2",
+        "MKL_ENABLE_INSTRUCTIONS": "AVX2",
+    }
+
+
+def numpy_avx512_features(version: tuple[int, int] | None) -> str:
+    """The names under which a numpy release dispatches its AVX-512 loops, all of which must be
+    disabled (disabling one leaves the others on). A name a release does not dispatch makes it
+    warn at every import, and the names changed: 2.4 groups the older ones as X86_V4, 2.3 added
+    AVX512_SPR (checked on 1.25, 1.26, 2.0, 2.2, 2.3 and 2.4). Unknown: the newest names."""
+    if version is None or version >= (2, 4):
+        return "X86_V4 AVX512_ICL AVX512_SPR"
+    older = "AVX512F AVX512CD AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL"
+    return older + " AVX512_SPR" if version >= (2, 3) else older
+
+
+def installed_numpy_version() -> tuple[int, int] | None:
+    """(major, minor) of the numpy this interpreter would import, read from its dist-info folder's
+    name without importing it (importlib.metadata would add 25 ms to every start); None if none."""
+    spec = importlib.util.find_spec("numpy")
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    site = Path(next(iter(spec.submodule_search_locations))).parent
+    for entry in site.glob("numpy-*-info"):  # dist-info, or egg-info
+        match = re.match(r"numpy-(\d+)\.(\d+)", entry.name)
+        if match:
+            return int(match[1]), int(match[2])
+    return None
+
+
 def use_avx2_kernels(environ: MutableMapping[str, str] = os.environ, cpuinfo: str | None = None,
                      machine: str | None = None) -> dict[str, str]:
     """Ask every arithmetic library for its AVX2 kernels, on an x86-64 CPU that has AVX2 and FMA.
@@ -73,7 +108,7 @@ def use_avx2_kernels(environ: MutableMapping[str, str] = os.environ, cpuinfo: st
         return {}
     if cpu_facts(cpuinfo)[1] not in ("AVX2", "AVX512"):
         return {}
-    added = {name: value for name, value in AVX2_KERNELS.items() if name not in environ}
+    added = {name: value for name, value in avx2_kernels().items() if name not in environ}
     loaded = [module for module in ("numpy", "torch") if module in sys.modules]
     if added and loaded and environ is os.environ:
         raise RuntimeError(f"use_avx2_kernels() must run before numpy and torch are imported; already "
@@ -84,11 +119,11 @@ def use_avx2_kernels(environ: MutableMapping[str, str] = os.environ, cpuinfo: st
 
 def kernels_in_use(width: str, environ: MutableMapping[str, str] = os.environ) -> str:
     """The kernels a CPU of vector ``width`` runs under ``environ``: ``AVX2`` where every setting
-    of :data:`AVX2_KERNELS` holds, the CPU's own width where none is made, else ``custom``."""
-    made = [environ.get(name) == value for name, value in AVX2_KERNELS.items()]
+    of :func:`avx2_kernels` holds, the CPU's own width where none is made, else ``custom``."""
+    made = [environ.get(name) == value for name, value in avx2_kernels().items()]
     if all(made) and width in ("AVX2", "AVX512"):
         return "AVX2"
-    if not any(name in environ for name in AVX2_KERNELS):
+    if not any(name in environ for name in AVX2_SETTINGS):
         return width
     return "custom"
 

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from sianms_cli.kernels import AVX2_KERNELS, NATIVE_SWITCH, cpu_facts, kernels_in_use, use_avx2_kernels
+from sianms_cli.kernels import (AVX2_SETTINGS, NATIVE_SWITCH, avx2_kernels, cpu_facts, kernels_in_use,
+                                numpy_avx512_features, use_avx2_kernels)
 
 XEON = "vendor_id\t: GenuineIntel\nflags\t\t: fpu sse2 avx avx2 fma avx512f avx512dq avx512cd avx512bw avx512vl\n"
 EPYC_ZEN3 = "vendor_id\t: AuthenticAMD\nflags\t\t: fpu sse2 avx avx2 fma bmi2\n"
@@ -19,14 +20,14 @@ ON_AVX2_CPU = cpu_facts()[1] in ("AVX2", "AVX512") and platform.machine() == "x8
 
 def unsettled_environment() -> dict[str, str]:
     """This environment without any kernel setting: what a shell that never ran sianms passes on."""
-    return {name: value for name, value in os.environ.items() if name not in (*AVX2_KERNELS, NATIVE_SWITCH)}
+    return {name: value for name, value in os.environ.items() if name not in (*AVX2_SETTINGS, NATIVE_SWITCH)}
 
 
 @pytest.mark.parametrize("cpuinfo", [XEON, EPYC_ZEN3])
 def test_an_avx2_cpu_is_asked_for_avx2_kernels_by_every_library(cpuinfo):
     environ = {}
-    assert use_avx2_kernels(environ, cpuinfo, "x86_64") == AVX2_KERNELS
-    assert environ == AVX2_KERNELS
+    assert use_avx2_kernels(environ, cpuinfo, "x86_64") == avx2_kernels()
+    assert environ == avx2_kernels() and list(environ) == list(AVX2_SETTINGS)
     assert kernels_in_use(cpu_facts(cpuinfo)[1], environ) == "AVX2"
 
 
@@ -48,6 +49,32 @@ def test_native_kernels_on_request():
     environ = {NATIVE_SWITCH: "1"}
     assert use_avx2_kernels(environ, XEON, "x86_64") == {} and environ == {NATIVE_SWITCH: "1"}
     assert kernels_in_use("AVX512", environ) == "AVX512"
+
+
+@pytest.mark.parametrize("version, names", [
+    ((2, 4), "X86_V4 AVX512_ICL AVX512_SPR"), ((3, 0), "X86_V4 AVX512_ICL AVX512_SPR"),
+    (None, "X86_V4 AVX512_ICL AVX512_SPR"),
+    ((2, 3), "AVX512F AVX512CD AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL AVX512_SPR"),
+    ((1, 25), "AVX512F AVX512CD AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL"),
+])
+def test_numpys_avx512_loops_go_by_the_names_of_its_release(version, names):
+    assert numpy_avx512_features(version) == names
+    if version is not None:  # None: the installed numpy's
+        assert avx2_kernels(version)["NPY_DISABLE_CPU_FEATURES"] == names
+
+
+@pytest.mark.skipif(not ON_AVX2_CPU, reason="an x86-64 CPU with AVX2")
+def test_the_installed_numpy_loads_silently_with_every_avx512_loop_off():
+    environment = unsettled_environment()
+    use_avx2_kernels(environment)
+    probe = ("import numpy\n"
+             "core = numpy._core if hasattr(numpy, '_core') else numpy.core\n"
+             "umath = core._multiarray_umath\n"
+             "print(' '.join(name for name in umath.__cpu_dispatch__ if umath.__cpu_features__[name]))\n")
+    done = subprocess.run([sys.executable, "-W", "error", "-c", probe], env=environment, capture_output=True,
+                          text=True)
+    assert done.returncode == 0 and done.stderr == ""  # a name numpy does not dispatch: a warning at every start
+    assert not [name for name in done.stdout.split() if name.startswith(("AVX512", "X86_V4"))]
 
 
 @pytest.mark.skipif(not ON_AVX2_CPU, reason="an x86-64 CPU with AVX2")

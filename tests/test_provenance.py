@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from sianms_cli.kernels import AVX2_KERNELS, NATIVE_SWITCH, cpu_facts
+from sianms_cli.kernels import AVX2_SETTINGS, NATIVE_SWITCH, cpu_facts
 from sianms_cli.provenance import numeric_platform
 
 XEON = """processor\t: 0
@@ -43,7 +43,7 @@ def test_the_ci_names_the_platform_as_the_record_does():
 def test_the_ci_names_the_native_platform_when_asked_for_native_kernels():
     script = Path(__file__).resolve().parents[1] / ".ci" / "platform"
     path = f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}"
-    environment = {name: value for name, value in os.environ.items() if name not in AVX2_KERNELS}
+    environment = {name: value for name, value in os.environ.items() if name not in AVX2_SETTINGS}
     printed = subprocess.run([str(script)], capture_output=True, text=True, check=True,
                              env={**environment, "PATH": path, NATIVE_SWITCH: "1"}).stdout.strip()
     vendor, width = cpu_facts()
