@@ -120,7 +120,7 @@ def main() -> None:
         print(f"{'2 threads' if on_cpu else args.device}, each precision / fp32")
         for precision in (name for name in precisions if name != "fp32"):
             for key in (key for key in fastest if key[0] == precision):
-                print(f"{precision:9s} | {key[1]:6d} | {key[2]:9s} | {fastest[key] / fastest['fp32', *key[1:]]:.2f}")
+                print(f"{precision:9s} | {key[1]:6d} | {key[2]:9s} | {fastest[key] / fastest[('fp32', *key[1:])]:.2f}")
     print(f"training in {precisions[0]}{', 2 threads' if on_cpu else ''}: segmentation head as the model applies "
           "it / as the original concatenates")
     print("points | per frustum | concatenated | ratio")

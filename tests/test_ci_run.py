@@ -1,8 +1,13 @@
 """`.ci/run` runs the test command the README's first lines give a newcomer, flag for flag."""
 
+import shutil
+import subprocess
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
+SOURCES = ("sianms_cli", "tests", "bench", "scripts", "examples")
 
 
 def readme_test_command() -> str:
@@ -22,7 +27,7 @@ def test_ci_runs_the_readmes_test_command():
 
 def floors() -> dict[str, str]:
     """Each dependency's lowest allowed version in pyproject.toml (runtime and test extra), by name."""
-    import tomllib
+    tomllib = pytest.importorskip("tomllib")  # Python 3.11 and later
 
     project = tomllib.loads(ROOT.joinpath("pyproject.toml").read_text())["project"]
     found = {}
@@ -48,3 +53,37 @@ def test_ci_tests_every_dependency_at_the_floor_pyproject_allows():
     assert set(pins) == set(allowed) - {"torch"}  # torch: the CPU build CI installs (see the file's header)
     assert {name: release(pins[name]) for name in pins} == {name: release(allowed[name]) for name in pins}
     assert "-c .ci/minimum-versions.txt" in ROOT.joinpath(".ci", "run").read_text()
+
+
+def test_every_source_compiles_on_the_oldest_python_allowed():
+    # Only what the oldest Python can parse (3.11's `d['a', *rest]` is a syntax error on 3.10);
+    # the suite itself runs on the Python CI has.
+    tomllib = pytest.importorskip("tomllib")
+    oldest = tomllib.loads(ROOT.joinpath("pyproject.toml").read_text())["project"]["requires-python"].removeprefix(">=")
+    interpreter = python_of_version(oldest)
+    if interpreter is None:
+        pytest.skip(f"no Python {oldest} on PATH or in pyenv")
+    probe = ("import pathlib, sys\n"
+             "for folder in sys.argv[1:]:\n"
+             "    for path in sorted(pathlib.Path(folder).rglob('*.py')):\n"
+             "        try:\n"
+             "            compile(path.read_text(), str(path), 'exec', dont_inherit=True)\n"
+             "        except SyntaxError as error:\n"
+             "            print(f'{path}:{error.lineno}: {error.msg}')\n")
+    done = subprocess.run([interpreter, "-c", probe, *(str(ROOT / name) for name in SOURCES)], capture_output=True,
+                          text=True, check=True)
+    assert done.stdout == ""
+
+
+def python_of_version(version: str) -> str | None:
+    """An interpreter of Python ``version`` (``3.10``) that runs: ``python3.10`` on PATH, else one
+    that pyenv holds (whose shim on PATH answers only for the versions selected)."""
+    candidates = [shutil.which(f"python{version}")]
+    if shutil.which("pyenv"):
+        listed = subprocess.run(["pyenv", "versions", "--bare"], capture_output=True, text=True).stdout.split()
+        root = subprocess.run(["pyenv", "root"], capture_output=True, text=True).stdout.strip()
+        candidates += [f"{root}/versions/{name}/bin/python" for name in listed if name.startswith(f"{version}.")]
+    for candidate in filter(None, candidates):
+        if subprocess.run([candidate, "-c", "pass"], capture_output=True).returncode == 0:
+            return candidate
+    return None
