@@ -85,7 +85,8 @@ def norm_2d(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     distance ties and threshold edges. :func:`_norm_rounding` finds which this machine's BLAS
     does, once; the fused step is emulated by :func:`fma`.
     """
-    return _NORM_FORMULAS[_norm_rounding()](np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
+    with np.errstate(over="ignore"):  # a velocity of 1e200 m/s: inf, as the devkit's norm gives
+        return _NORM_FORMULAS[_norm_rounding()](np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
 
 
 _NORM_FORMULAS = {
@@ -147,7 +148,8 @@ def scale_iou(gt_size: np.ndarray, pred_size: np.ndarray) -> np.ndarray:
     smallest = np.minimum(gt, pred)
     intersection = smallest[..., 0] * smallest[..., 1] * smallest[..., 2]
     volume_gt = gt[..., 0] * gt[..., 1] * gt[..., 2]
-    volume_pred = pred[..., 0] * pred[..., 1] * pred[..., 2]
+    with np.errstate(over="ignore"):  # a predicted 1e200 m box: volume inf, IoU 0, as in the devkit
+        volume_pred = pred[..., 0] * pred[..., 1] * pred[..., 2]
     return intersection / (volume_gt + volume_pred - intersection)
 
 

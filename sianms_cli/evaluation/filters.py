@@ -42,7 +42,8 @@ def ego_distance(boxes: np.ndarray, ego_translation: np.ndarray) -> np.ndarray:
     Computed as the devkit's ``EvalBox.ego_dist``: ``sqrt(dx**2 + dy**2)``.
     """
     offset = boxes["translation"][:, :2] - ego_translation[boxes["sample"], :2]
-    return np.sqrt(offset[:, 0] ** 2 + offset[:, 1] ** 2)
+    with np.errstate(over="ignore"):  # a box 1e200 m away: inf, out of range, as in the devkit
+        return np.sqrt(offset[:, 0] ** 2 + offset[:, 1] ** 2)
 
 
 def in_bicycle_rack(boxes: np.ndarray, racks: np.ndarray) -> np.ndarray:

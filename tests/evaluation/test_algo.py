@@ -4,6 +4,7 @@ devkit's ``accumulate`` (devkit_port.py), at threshold and tie edges."""
 from __future__ import annotations
 
 import itertools
+import warnings
 import random
 
 import numpy as np
@@ -335,3 +336,12 @@ def test_crowded_sample_needs_many_rounds_and_still_matches():
                       score=np.round(rng.random(300), 1))
     for threshold, md in zip([0.5, 2.0], accumulate_thresholds(gt, pred, "car", [0.5, 2.0])):
         assert md == accumulate_reference(gt, pred, "car", threshold)
+
+
+def test_absurd_predictions_score_as_in_the_devkit_without_numpy_warnings():
+    # A detector bug writes a 1e200 m box or a 1e308 m/s velocity: the devkit's arithmetic gives
+    # IoU 0 and an infinite velocity error (with numpy's overflow warnings); ours, the same, silently.
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert scale_iou(np.array([[2.0, 4.5, 1.5]]), np.array([[1e200, 1e200, 1e200]])).tolist() == [0.0]
+        assert velocity_l2(np.array([[0.0, 0.0]]), np.array([[1e308, -1e308]])).tolist() == [np.inf]

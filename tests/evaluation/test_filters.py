@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from sianms_cli.evaluation.boxes import make_boxes
@@ -18,6 +20,13 @@ def test_ego_distance_is_the_devkits_ego_dist():
     boxes = make_boxes(rng.integers(0, 2, 500), "car", rng.normal(50, 40, (500, 3)))
     expected = [np.sqrt(np.sum(np.array(tuple(b["translation"] - EGO[b["sample"]])[:2]) ** 2)) for b in boxes]
     assert np.array_equal(ego_distance(boxes, EGO), expected)
+
+
+def test_a_box_1e200_m_away_is_infinitely_far_without_numpy_warnings():
+    boxes = make_boxes(np.array([0]), "car", np.array([[1e200, 1e200, 0.0]]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert ego_distance(boxes, EGO).tolist() == [np.inf]  # out of every range, as in the devkit
 
 
 def test_range_is_strict_and_per_class():
