@@ -72,7 +72,7 @@ def numpy_avx512_features(version: tuple[int, int] | None) -> str:
     """The names under which a numpy release dispatches its AVX-512 loops, all of which must be
     disabled (disabling one leaves the others on). A name a release does not dispatch makes it
     warn at every import, and the names changed: 2.4 groups the older ones as X86_V4, 2.3 added
-    AVX512_SPR (checked on 1.25, 1.26, 2.0, 2.2, 2.3 and 2.4). Unknown: the newest names."""
+    AVX512_SPR (checked on 1.25, 1.26, 2.0, 2.2, 2.3, 2.4 and 2.5). Unknown: the newest names."""
     if version is None or version >= (2, 4):
         return "X86_V4 AVX512_ICL AVX512_SPR"
     older = "AVX512F AVX512CD AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL"
