@@ -87,7 +87,7 @@ def test_an_interrupt_a_library_swallowed_still_ends_the_run_as_interrupted(monk
     from sianms_cli.cli import _app
 
     monkeypatch.setattr(processes, "_SIGNALS_RECEIVED", [])
-    monkeypatch.setattr(_app, "_interrupt_said", [])
+    monkeypatch.setattr(_app, "_ending_said", [])
     monkeypatch.delenv("RANK", raising=False)
     handlers = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
     try:
@@ -103,6 +103,19 @@ def test_an_interrupt_a_library_swallowed_still_ends_the_run_as_interrupted(monk
         signal.signal(signal.SIGINT, handlers[0])
         signal.signal(signal.SIGTERM, handlers[1])
     assert capsys.readouterr().err == f"interrupted (SIGINT); {_app.INTERRUPTED}\n"
+
+
+def test_a_signal_after_the_error_line_keeps_the_one_line_and_its_code(monkeypatch, capsys):
+    """torchrun signals a rank whose peer died just after that rank said so: no second line."""
+    from sianms_cli import processes
+    from sianms_cli.cli import _app
+
+    monkeypatch.setattr(processes, "_SIGNALS_RECEIVED", [signal.SIGTERM])
+    monkeypatch.setattr(_app, "_ending_said", [])
+    monkeypatch.delenv("RANK", raising=False)
+    _app.say_error("error: another process of this torchrun run stopped")
+    assert _app.exit_code_after_signals(1) == 1
+    assert capsys.readouterr().err == "error: another process of this torchrun run stopped\n"
 
 
 @pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])

@@ -5,7 +5,7 @@ import sys
 import typer
 from typer.main import get_command
 
-from sianms_cli.cli._app import app, exit_code_after_signals
+from sianms_cli.cli._app import app, exit_code_after_signals, say_error
 from sianms_cli.processes import exit_on_signals, interrupt_on_signals, signal_received
 from sianms_cli.cli import demo, evaluate, info, metrics, prepare, report, synth, train  # noqa: F401  (importing registers the subcommands)
 
@@ -27,7 +27,7 @@ def main() -> None:
             error.show()
         if context is not None:
             message = "missing command." if bare_group else " ".join(error.format_message().split())
-            typer.echo(f"error: {context.command_path}: {message} (see '{context.command_path} -h')", err=True)
+            say_error(f"error: {context.command_path}: {message} (see '{context.command_path} -h')")
         code = error.exit_code
     except typer.Abort:  # click's word for a KeyboardInterrupt while it parsed
         if signal_received() is None:

@@ -17,7 +17,7 @@ from sianms_cli.io import describe_os_error
 from sianms_cli.processes import Terminated, signal_received
 
 INTERRUPTED = "finished outputs are kept, a rerun resumes or starts afresh"
-_interrupt_said: list[bool] = []
+_ending_said: list[str] = []  # the one line a run ends with, once said: "interrupted" or "error"
 
 def _typer(name: str, help: str) -> typer.Typer:
     """A command (group) with the project's settings: -h, plain click help, no tracebacks."""
@@ -113,17 +113,25 @@ def say_interrupted(terminated: bool) -> None:
     """The one line an interrupted run ends with (rank 0's alone under torchrun)."""
     if follower_rank() is None:
         typer.echo(f"interrupted ({'SIGTERM' if terminated else 'SIGINT'}); {INTERRUPTED}", err=True)
-    _interrupt_said.append(True)
+    _ending_said.append("interrupted")
+
+
+def say_error(line: str) -> None:
+    """A failed command's one ``error:`` line, on stderr."""
+    typer.echo(line, err=True)
+    _ending_said.append("error")
 
 
 def exit_code_after_signals(code: int) -> int:
     """``code``, or 130 / 143 when SIGINT / SIGTERM came, with the interrupted line if the command
     did not say it: the signal came while typer parsed the command line, or a library swallowed
-    the KeyboardInterrupt and the run went on."""
+    the KeyboardInterrupt and the run went on. A command that already failed with its error line
+    keeps its code and its one line: torchrun signals a rank whose peer died just after that rank
+    said so."""
     signum = signal_received()
-    if signum is None:
+    if signum is None or "error" in _ending_said:
         return code
-    if not _interrupt_said:
+    if not _ending_said:
         say_interrupted(signum == signal.SIGTERM)
     return 128 + signum
 
@@ -184,17 +192,17 @@ def command(name: str, group: typer.Typer | None = None) -> Callable[[Callable],
             try:
                 return function(*args, **{name: home_expanded(value) for name, value in kwargs.items()})
             except SianmsError as error:
-                typer.echo(f"{prefix}{error}", err=True)
+                say_error(f"{prefix}{error}")
                 raise typer.Exit(error.exit_code) from None
             except OSError as error:
-                typer.echo(f"{prefix}{describe_os_error(error)}", err=True)
+                say_error(f"{prefix}{describe_os_error(error)}")
                 raise typer.Exit(2) from None
             except (MemoryError, RuntimeError) as error:
                 if is_out_of_memory(error):
-                    typer.echo(f"{prefix}{describe_out_of_memory(error)}", err=True)
+                    say_error(f"{prefix}{describe_out_of_memory(error)}")
                 elif is_peer_lost(error):
-                    typer.echo(f"{prefix}another process of this torchrun run stopped; its own lines or "
-                               "torchrun's failure summary say why", err=True)
+                    say_error(f"{prefix}another process of this torchrun run stopped; its own lines or "
+                              "torchrun's failure summary say why")
                 else:
                     raise
                 raise typer.Exit(1) from None
