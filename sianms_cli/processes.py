@@ -61,12 +61,38 @@ def _raise_interrupt(signum: int, frame: Any) -> None:
     raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
 
+_DELIVER_AGAIN = threading.Event()
+
+
+def _deliver_again_when_asked() -> None:
+    while True:
+        _DELIVER_AGAIN.wait()
+        _DELIVER_AGAIN.clear()
+        os.kill(os.getpid(), _SIGNALS_RECEIVED[-1])
+
+
+def _interrupt_again(unraisable: Any) -> None:
+    """An interrupt that landed in a finaliser or a weakref callback (the garbage collector ran
+    when the signal came) is one Python cannot raise: it would print the callback's traceback and
+    carry on. Say nothing and have the signal delivered again, from a thread waiting for that
+    (sending it from here would run the handler here), so that it lands once the callback has
+    returned and the interrupt unwinds the run."""
+    if isinstance(unraisable.exc_value, KeyboardInterrupt) and _SIGNALS_RECEIVED:
+        _DELIVER_AGAIN.set()
+    else:
+        sys.__unraisablehook__(unraisable)
+
+
 def interrupt_on_signals() -> None:
     """From now on SIGINT raises KeyboardInterrupt and SIGTERM :class:`Terminated` in the main
     thread, and :func:`signal_received` remembers the first: a library that swallows the
-    exception (a C callback, an ``except`` around an import) cannot make a run look finished."""
+    exception (a C callback, an ``except`` around an import) cannot make a run look finished,
+    and one raised where Python cannot raise it is delivered again (:func:`_interrupt_again`)."""
     signal.signal(signal.SIGINT, _raise_interrupt)
     signal.signal(signal.SIGTERM, _raise_interrupt)
+    if sys.unraisablehook is not _interrupt_again:
+        threading.Thread(target=_deliver_again_when_asked, name="sianms-interrupt-again", daemon=True).start()
+        sys.unraisablehook = _interrupt_again
 
 
 def exit_on_signals(code: int) -> None:

@@ -5,6 +5,7 @@ import pickle
 import signal
 import subprocess
 import sys
+import textwrap
 import time
 from pathlib import Path
 
@@ -159,3 +160,33 @@ def test_a_signal_after_the_command_ended_exits_at_once_with_its_code():
               "time.sleep(30)\n")
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
     assert (done.returncode, done.stderr) == (3, "")
+
+
+def test_an_interrupt_that_lands_in_a_finaliser_is_delivered_again_without_a_traceback():
+    """The garbage collector may run a weakref callback or a ``__del__`` when the signal comes
+    (seen in ``sianms report``): Python cannot raise there, and printed the callback's traceback
+    while the run went on; now the interrupt unwinds the run, silently, and any other exception
+    a finaliser loses is still printed."""
+    probe = textwrap.dedent("""
+        import os, signal, time
+        from sianms_cli import processes
+        processes.interrupt_on_signals()
+        class Interrupting:
+            def __del__(self):
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(1)
+        try:
+            thing = Interrupting()
+            del thing
+            time.sleep(10)
+            print("not interrupted")
+        except KeyboardInterrupt:
+            print("interrupted", processes.signal_received())
+    """)
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
+    assert (done.returncode, done.stdout, done.stderr) == (0, "interrupted 2\n", "")
+    other = ("from sianms_cli import processes; processes.interrupt_on_signals()\n"
+             "class Failing:\n    def __del__(self):\n        raise ValueError('lost in a finaliser')\n"
+             "thing = Failing(); del thing")
+    done = subprocess.run([sys.executable, "-c", other], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and "ValueError: lost in a finaliser" in done.stderr
