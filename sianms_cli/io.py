@@ -121,14 +121,18 @@ class AtomicFile:
         refuse_non_file(self.path)
         self.temporary = partial_name(self.path)
         _OPEN_TEMPORARIES.add(self.temporary)
-        with os_errors_as_output_errors(self.path):
-            try:
+        descriptor = None
+        try:
+            with os_errors_as_output_errors(self.path):
                 descriptor = os.open(self.temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-            except BaseException:
-                _OPEN_TEMPORARIES.discard(self.temporary)
-                raise
-        self.stream: IO = (open(descriptor, "w", encoding="utf-8", newline="\n") if text
-                           else open(descriptor, "wb"))
+            self.stream: IO = (open(descriptor, "w", encoding="utf-8", newline="\n") if text
+                               else open(descriptor, "wb"))
+        except BaseException:  # an interrupt may land once the file exists, before anyone holds it
+            if descriptor is not None and not hasattr(self, "stream"):
+                os.close(descriptor)
+            self.temporary.unlink(missing_ok=True)
+            _OPEN_TEMPORARIES.discard(self.temporary)
+            raise
 
     def commit(self) -> Path:
         """Close and rename into place; on failure (a full disk) the temporary file is deleted."""

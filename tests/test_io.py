@@ -240,3 +240,16 @@ def test_nesting_is_measured_outside_strings_on_any_python():
     assert not io.nested_too_deep("[" * 1024 + "]" * 1024)
     assert io.nested_too_deep("[" * 1025 + "]" * 1025)
     assert not io.nested_too_deep("[[]]" * 2000)  # many brackets, shallow
+
+
+@pytest.mark.parametrize("text", [False, True])
+def test_an_interrupt_as_the_temporary_file_is_created_leaves_no_file(tmp_path, monkeypatch, text):
+    """Ctrl-C landing once the temporary file exists but before anyone holds it: the file goes
+    with it (a 0-byte leftover had made the next run refuse the folder as someone else's)."""
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(io, "open", interrupted, raising=False)
+    with pytest.raises(KeyboardInterrupt):
+        io.AtomicFile(tmp_path / "manifest.json", text=text)
+    assert list(tmp_path.iterdir()) == [] and not io._OPEN_TEMPORARIES

@@ -231,16 +231,18 @@ def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> bool:
                            if entry.name != MARKER and not (keep_scenes and entry.name == SCENES))
             inside = [child for entry in stale if entry.name in (SCENES, PICTURES) and _is_eval_entry(entry)
                       for child in sorted(entry.iterdir())]
+            scenes = stored.get("config", {}).get("split_scenes")
+            scenes = frozenset(name for name in scenes if isinstance(name, str)) if isinstance(scenes, list) else frozenset()
             for entry in stale + inside:  # all checked before anything is deleted
-                if not _is_eval_entry(entry, "" if entry.parent == out else entry.parent.name):
+                if not _is_eval_entry(entry, "" if entry.parent == out else entry.parent.name, scenes):
                     raise OutputExistsError(f"{out}: not replaced: '{entry.relative_to(out)}' is not something "
                                             "sianms eval writes; remove it yourself or choose another --out")
             for entry in stale:
                 shutil.rmtree(entry) if entry.is_dir() else entry.unlink()
         elif stored.get("complete"):
             return True
+    write_marker(out, resolved, {}, complete=False)  # before the scenes' folder: a folder without it is not eval's
     make_folder(out / SCENES)
-    write_marker(out, resolved, {}, complete=False)
     return False
 
 
@@ -255,17 +257,21 @@ def refuse_foreign_folder(out: Path) -> list[Path]:
     return entries
 
 
-def _is_eval_entry(entry: Path, folder: str = "") -> bool:
+def _is_eval_entry(entry: Path, folder: str = "", scenes: frozenset[str] = frozenset()) -> bool:
     """Whether an entry of an evaluation folder (of its subfolder ``folder``: scenes, pictures) is one
     `sianms eval` writes there, a killed write's temporary file of one, or `sianms report`'s default
-    report folder: what ``--overwrite`` may delete. Links never are."""
+    report folder: what ``--overwrite`` may delete. In ``scenes`` only the tables and locks of the
+    evaluation's own scenes (``scenes``: its split's) are; links never are."""
     if entry.is_symlink():
         return False
     partial = partial_of(entry.name)
     name = partial or entry.name
     if entry.is_file():
+        if folder == SCENES:
+            stem, _, extension = name.rpartition(".")
+            return extension in ("parquet", "lock") and stem in scenes
         if folder:
-            return name.endswith({SCENES: (".parquet", ".lock"), PICTURES: (".png",)}.get(folder, ()))
+            return folder == PICTURES and name.endswith(".png")
         return name in (MARKER, LOCK) or _EVAL_FILE.fullmatch(name) is not None
     if not entry.is_dir() or partial or folder:
         return False

@@ -144,7 +144,7 @@ def claim_output(out: Path, resolved: dict[str, Any], expected: list[str], datar
     writing one of its shards. Anything else is refused: a command deletes only its own.
     """
     manifest = read_manifest(out)
-    entries = [entry.name for entry in out.iterdir() if entry.name != FOLDER_LOCK]
+    entries = [entry.name for entry in out.iterdir() if entry.name != FOLDER_LOCK and partial_of(entry.name) != MANIFEST]
     if manifest is None and entries:
         raise OutputExistsError(
             f"{out} is not empty and is not a sianms cache (no {MANIFEST}); choose another --out")

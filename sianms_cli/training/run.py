@@ -62,7 +62,7 @@ import numpy as np
 import torch
 
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
-from sianms_cli.io import FolderBusyError, exclusive_lock, make_folder, read_json, write_bytes, write_json
+from sianms_cli.io import FolderBusyError, exclusive_lock, make_folder, partial_of, read_json, write_bytes, write_json
 
 CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.json"
@@ -451,7 +451,7 @@ class RunFolder:
         if path.exists() and not path.is_dir():
             raise OutputExistsError(f"{path} exists and is not a folder; choose another --out")
         has_run = path.is_dir() and holds_run(path)
-        if path.is_dir() and not has_run and any(p.name != FOLDER_LOCK_NAME for p in path.iterdir()):
+        if path.is_dir() and not has_run and any(not _is_left_by_a_start(p.name) for p in path.iterdir()):
             raise OutputExistsError(f"{path} is a non-empty folder that holds no sianms run; choose another --out")
         resumed = None
         if has_run and resume:
@@ -567,6 +567,12 @@ class RunFolder:
         write_bytes(self.path / METRICS, metrics_csv(checkpoint.history).encode())
         if curves and checkpoint.history:
             self._plot()
+
+
+def _is_left_by_a_start(name: str) -> bool:
+    """The folder lock, or the temporary file of a run file whose write a kill cut short: what a run
+    stopped as it started leaves, which does not make the folder someone else's."""
+    return name == FOLDER_LOCK_NAME or partial_of(name) in RUN_FILES
 
 
 def holds_run(path: Path) -> bool:

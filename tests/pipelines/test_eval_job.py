@@ -197,7 +197,8 @@ def test_overwrite_replaces_a_stale_evaluation_and_its_report(tmp_path):
 
 
 @pytest.mark.parametrize("foreign", ["notes.txt", "photos/a.jpg", "results_final.json", "metrics_vanilla.json.bak",
-                                     "report/", "report/notes.txt", "pictures/mine.jpg", "scenes/notes.txt"])
+                                     "report/", "report/notes.txt", "pictures/mine.jpg", "scenes/notes.txt",
+                                     "scenes/my-notes.parquet", "scenes/scene-0002.parquet"])
 def test_overwrite_refuses_a_folder_holding_what_eval_does_not_write(tmp_path, foreign):
     out = stale_evaluation(tmp_path / "eval")
     if foreign == "report/":  # a folder named report that is not a sianms report
@@ -276,3 +277,21 @@ def test_a_nan_in_the_cache_is_blamed_on_the_cache_file(eval_inputs, tmp_path):
     record = table["detection_id"][3]
     with pytest.raises(DataFormatError, match=rf"^{path}: record {record}: field 'rot_angle': not a finite number"):
         run(config_of(eval_inputs, cache=str(cache), methods="vanilla"), tmp_path / "out")
+
+
+def test_a_folder_claimed_by_a_run_killed_at_once_is_still_the_evaluations(tmp_path, monkeypatch):
+    """eval.json is written before the scenes' folder: a kill between the two had left a folder
+    that no later run, --overwrite or not, would take as an evaluation's."""
+    from sianms_cli.pipelines import job
+
+    def interrupted(path):
+        raise KeyboardInterrupt
+
+    out = tmp_path / "eval"
+    out.mkdir()
+    with monkeypatch.context() as patch:
+        patch.setattr(job, "make_folder", interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            claim_output(out, NEW_CONFIG, overwrite=False)
+    assert claim_output(out, NEW_CONFIG, overwrite=False) is False
+    assert (out / "scenes").is_dir()

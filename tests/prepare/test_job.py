@@ -149,6 +149,16 @@ def test_out_naming_a_file_is_refused(config, tmp_path):
         job.run(config, tmp_path / "file")
 
 
+def test_a_cache_killed_as_it_wrote_its_first_manifest_is_started_again(config, tmp_path):
+    """A kill while the first manifest was written leaves the lock and the manifest's temporary
+    file: the folder is still the cache's, not someone else's (it had been refused for good)."""
+    out = tmp_path / "cache"
+    out.mkdir()
+    (out / ".sianms.lock").write_text("")
+    (out / ".manifest.json.4242.0123abcd.partial").write_text("")
+    assert job.run(config, out).manifest["complete"]
+
+
 def test_a_folder_that_is_not_a_cache_is_never_deleted(config, tmp_path):
     out = tmp_path / "mine"
     out.mkdir()

@@ -290,3 +290,19 @@ def test_schedule_seeds_and_device():
     if not torch.cuda.is_available():
         with pytest.raises(SianmsError, match="CUDA is not available"):
             choose_device("cuda")
+
+
+def test_a_run_killed_as_it_wrote_its_first_file_is_started_again(tmp_path):
+    """A kill while config.json was first written leaves the lock and its temporary file: the
+    folder is still the run's, not someone else's."""
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / ".sianms.lock").write_text("")
+    (out / ".config.json.4242.0123abcd.partial").write_text("")
+    with RunFolder.open(out, kind="siamese", config={"dim": 2}):
+        pass
+    assert (out / CONFIG).is_file()
+    (out / ".notes.txt.4242.0123abcd.partial").write_text("")  # a temporary name, but of no run file
+    (out / CONFIG).unlink()
+    with pytest.raises(OutputExistsError, match="holds no sianms run"):
+        RunFolder.open(tmp_path / "run", kind="siamese", config={"dim": 2})
