@@ -32,6 +32,7 @@ faster on CPUs that compute bfloat16 natively and trains other weights.
 
 from __future__ import annotations
 
+import os
 import shutil
 import time
 from dataclasses import asdict, dataclass, field, replace
@@ -59,6 +60,7 @@ VERSIONS = {"v1.0-mini": DemoVersion("mini_train", "mini_val", 10), "v1.0-trainv
 FOLDERS = {"synth": "data", "prepare-train": "cache-train", "prepare-val": "cache-val", "siamese": "siamese",
            "fpointnet": "fpointnet", "eval": "eval", "report": "eval/report"}
 STAGES = tuple(FOLDERS)
+REPLACING = "replacing"  # demo.json's list of the stages whose folders an --overwrite is deleting
 STAGE_FIELDS = {  # the resolved config's fields each stage's output depends on, besides the stages before it
     "synth": ("seed", "version", "scenes", "image_scale", "scene_seconds"), "prepare-train": (), "prepare-val": (),
     "siamese": ("siamese_epochs", "siamese_lr", "precision"),
@@ -248,7 +250,7 @@ def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> dict[s
             raise OutputExistsError(f"{marker} is not a sianms demo's; choose another --out")
         check_record(stored, marker)
         if stored.get("config") == resolved:
-            return stored
+            return _replace_stages(out, stored, stored[REPLACING]) if stored.get(REPLACING) else stored
         if not overwrite:
             differing = sorted(key for key in set(resolved) | set(stored.get("config", {}))
                                if resolved.get(key) != stored.get("config", {}).get(key))
@@ -258,17 +260,57 @@ def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> dict[s
         if foreign:
             raise OutputExistsError(f"{out} is not replaced: it holds {foreign[0]}, which the demo did not write")
         kept = STAGES[:first_changed_stage(stored.get("config", {}), resolved)]
-        for stage in STAGES:
-            if stage not in kept and (out / FOLDERS[stage]).is_dir():
-                shutil.rmtree(out / FOLDERS[stage])
         record = {"kind": KIND, "config": resolved, "complete": False,
                   "stages": {stage: state for stage, state in stored.get("stages", {}).items() if stage in kept}}
-        write_json(marker, record)
-        return record
+        return _replace_stages(out, record, [stage for stage in STAGES if stage not in kept])
     make_folder(out)
     record = {"kind": KIND, "config": resolved, "complete": False, "stages": {}}
     write_json(marker, record)
     return record
+
+
+def _replace_stages(out: Path, record: dict[str, Any], stages: list[str]) -> dict[str, Any]:
+    """Delete the folders of ``stages`` and return ``record``, written without them. Every folder is
+    checked before any is deleted (:func:`foreign_stage_entry`), and the record names the stages
+    being replaced while they are (:data:`REPLACING`), so a run killed meanwhile leaves a demo that
+    neither says they are done nor keeps their old outputs: its rerun finishes the deletion."""
+    present = [stage for stage in stages if os.path.lexists(out / FOLDERS[stage])]
+    for stage in present:
+        foreign = foreign_stage_entry(stage, out / FOLDERS[stage])
+        if foreign is not None:
+            raise OutputExistsError(f"{out} is not replaced: it holds {foreign.relative_to(out)}, which the "
+                                    "demo did not write; remove it yourself or choose another --out")
+    if present:
+        write_json(out / MARKER, {**record, REPLACING: present})
+        for stage in present:
+            if (out / FOLDERS[stage]).is_dir():  # the report's folder went with the evaluation's
+                shutil.rmtree(out / FOLDERS[stage])
+    record = {key: value for key, value in record.items() if key != REPLACING}
+    write_json(out / MARKER, record)
+    return record
+
+
+def foreign_stage_entry(stage: str, folder: Path) -> Path | None:
+    """The first path in a stage's folder that the stage's command does not write (each command's
+    own rule, as its --overwrite applies it), or None: the demo deletes a stage's folder whole."""
+    if folder.is_symlink() or not folder.is_dir():
+        return folder
+    if not any(folder.iterdir()):
+        return None
+    if stage == "synth":
+        from sianms_cli.synth.generate import foreign_dataset_entry
+        return foreign_dataset_entry(folder)
+    if stage.startswith("prepare"):
+        from sianms_cli.prepare.job import foreign_cache_entry
+        return foreign_cache_entry(folder)
+    if stage in ("siamese", "fpointnet"):
+        from sianms_cli.training.run import foreign_run_entry
+        return foreign_run_entry(folder)
+    if stage == "eval":
+        from sianms_cli.pipelines.job import foreign_eval_entry
+        return foreign_eval_entry(folder)
+    from sianms_cli.reporting.report import foreign_entry, is_report_folder
+    return foreign_entry(folder) if is_report_folder(folder) else folder
 
 
 def check_record(record: dict[str, Any], marker: Path) -> None:
@@ -277,6 +319,9 @@ def check_record(record: dict[str, Any], marker: Path) -> None:
     for name in ("config", "stages"):
         if not isinstance(record.get(name), dict):
             raise DataFormatError(marker, f"must be an object, got {type(record.get(name)).__name__}", field=name)
+    replacing = record.get(REPLACING, [])
+    if not (isinstance(replacing, list) and all(stage in STAGES for stage in replacing)):
+        raise DataFormatError(marker, f"must be a list of stages ({', '.join(STAGES)})", field=REPLACING)
     for stage, state in record["stages"].items():
         seconds = state.get("seconds") if isinstance(state, dict) else None
         if not isinstance(state, dict) or not isinstance(state.get("done"), bool):

@@ -145,8 +145,9 @@ def test_profiles_and_overrides():
 def test_overwrite_keeps_the_stages_before_the_first_one_the_change_affects(tmp_path):
     out = tmp_path / "demo"
     record = demo.claim_output(out, DemoConfig().resolved(), overwrite=False)
-    for stage in demo.STAGES:
-        (out / demo.FOLDERS[stage]).mkdir(parents=True, exist_ok=True)
+    for stage in demo.STAGES:  # empty folders: what is in each is its command's to recognise (test below)
+        if stage != "report":  # inside eval's: that would not be empty
+            (out / demo.FOLDERS[stage]).mkdir(parents=True, exist_ok=True)
         record["stages"][stage] = {"done": True, "seconds": 1.0}
     (out / "demo.json").write_text(json.dumps(record))
     more_epochs = DemoConfig(fpointnet_epochs=demo.DEFAULT.fpointnet_epochs + 2).resolved()
@@ -190,3 +191,41 @@ def test_match_geometry_reads_a_finished_demo(interrupted_then_resumed):
     reid = table["reidentification"]["sianms"]
     assert counts.get("right", 0) == reid["pairs_correct"]
     assert counts.get("wrong", 0) == reid["pairs_matched"] - reid["pairs_correct"]
+
+
+def test_overwrite_deletes_no_file_in_a_stage_folder_that_its_command_did_not_write(interrupted_then_resumed,
+                                                                                  tmp_path, monkeypatch):
+    """Each stage's folder is checked by its own command's rule before any is deleted (a note in
+    siamese/ and a folder of plots in eval/ had been deleted with them), and demo.json says the
+    replaced stages are to do before the first is deleted (a kill while deleting had left it
+    saying 'complete' over a half-deleted dataset)."""
+    out = tmp_path / "demo"
+    shutil.copytree(interrupted_then_resumed[2].out, out)
+    before = (out / "demo.json").read_bytes()
+    other = {**json.loads(before)["config"], "seed": 99}
+    for mine, named in (("siamese/notes.txt", "siamese/notes.txt"), ("eval/my-plots/fig.txt", "eval/my-plots"),
+                        ("cache-val/frustums/mine.parquet", "cache-val/frustums/mine.parquet"),
+                        ("data/maps/mine.png", "data/maps/mine.png"), ("eval/report/notes.md", "eval/report")):
+        (out / mine).parent.mkdir(exist_ok=True)
+        (out / mine).write_text("mine")
+        with pytest.raises(OutputExistsError, match=f"it holds {named}, which the demo did not write"):
+            demo.claim_output(out, other, overwrite=True)
+        assert (out / mine).read_text() == "mine" and (out / "demo.json").read_bytes() == before
+        (out / mine).unlink()
+        if "my-plots" in mine:
+            (out / mine).parent.rmdir()
+
+    def interrupted(path, *args, **kwargs):
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as patch:
+        patch.setattr(demo.shutil, "rmtree", interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            demo.claim_output(out, other, overwrite=True)
+    record = json.loads((out / "demo.json").read_text())
+    assert record["config"] == other and not record["complete"] and record["stages"] == {}
+    assert record["replacing"] == list(demo.STAGES)
+    finished = demo.claim_output(out, other, overwrite=False)  # the rerun, as typed: it finishes the deletion
+    assert finished == {key: value for key, value in record.items() if key != "replacing"}
+    assert sorted(p.name for p in out.iterdir()) == ["demo.json"]
+    assert "replacing" not in json.loads((out / "demo.json").read_text())

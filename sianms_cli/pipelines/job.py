@@ -229,14 +229,10 @@ def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> bool:
             keep_scenes = scene_part(stored.get("config", {})) == scene_part(resolved)
             stale = sorted(entry for entry in entries
                            if entry.name != MARKER and not (keep_scenes and entry.name == SCENES))
-            inside = [child for entry in stale if entry.name in (SCENES, PICTURES) and _is_eval_entry(entry)
-                      for child in sorted(entry.iterdir())]
-            scenes = stored.get("config", {}).get("split_scenes")
-            scenes = frozenset(name for name in scenes if isinstance(name, str)) if isinstance(scenes, list) else frozenset()
-            for entry in stale + inside:  # all checked before anything is deleted
-                if not _is_eval_entry(entry, "" if entry.parent == out else entry.parent.name, scenes):
-                    raise OutputExistsError(f"{out}: not replaced: '{entry.relative_to(out)}' is not something "
-                                            "sianms eval writes; remove it yourself or choose another --out")
+            foreign = _first_foreign(out, stale, stored)  # all checked before anything is deleted
+            if foreign is not None:
+                raise OutputExistsError(f"{out}: not replaced: '{foreign.relative_to(out)}' is not something "
+                                        "sianms eval writes; remove it yourself or choose another --out")
             for entry in stale:
                 shutil.rmtree(entry) if entry.is_dir() else entry.unlink()
         elif stored.get("complete"):
@@ -244,6 +240,27 @@ def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> bool:
     write_marker(out, resolved, {}, complete=False)  # before the scenes' folder: a folder without it is not eval's
     make_folder(out / SCENES)
     return False
+
+
+def _first_foreign(out: Path, entries: list[Path], stored: dict[str, Any]) -> Path | None:
+    """The first of ``entries`` of the evaluation folder ``out`` (whose eval.json holds ``stored``), or of
+    what they hold, that `sianms eval` does not write (:func:`_is_eval_entry`), or None."""
+    inside = [child for entry in entries if entry.name in (SCENES, PICTURES) and _is_eval_entry(entry)
+              for child in sorted(entry.iterdir())]
+    config = stored.get("config")
+    scenes = config.get("split_scenes") if isinstance(config, dict) else None
+    scenes = frozenset(name for name in scenes if isinstance(name, str)) if isinstance(scenes, list) else frozenset()
+    return next((entry for entry in entries + inside
+                 if not _is_eval_entry(entry, "" if entry.parent == out else entry.parent.name, scenes)), None)
+
+
+def foreign_eval_entry(out: Path) -> Path | None:
+    """The first path in an evaluation folder that `sianms eval` does not write, or None: what deleting
+    the folder would take of someone else's (a folder without eval.json is all someone else's)."""
+    stored = read_json(out / MARKER) if (out / MARKER).is_file() else None
+    if not isinstance(stored, dict) or stored.get("kind") != KIND:
+        return out
+    return _first_foreign(out, sorted(entry for entry in out.iterdir() if entry.name != MARKER), stored)
 
 
 def refuse_foreign_folder(out: Path) -> list[Path]:

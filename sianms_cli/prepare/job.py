@@ -30,7 +30,8 @@ from sianms_cli.data.cache import (
 )
 from sianms_cli.data.schemas import DATASETS
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_workers
-from sianms_cli.io import PARTIAL_SUFFIX, FolderBusyError, exclusive_lock, partial_of, release_lock, try_lock
+from sianms_cli.io import (PARTIAL_SUFFIX, FolderBusyError, exclusive_lock, first_foreign_file, partial_of, release_lock,
+                          try_lock)
 from sianms_cli.nuscenes.fingerprint import dataset_fingerprint
 from sianms_cli.nuscenes.tables import CAMERA_CHANNELS
 from sianms_cli.processes import TASK_TORCH_THREADS, task_torch_threads, worker_pool
@@ -161,6 +162,34 @@ def claim_output(out: Path, resolved: dict[str, Any], expected: list[str], datar
     write_manifest(out, resolved, expected, dataroot)
 
 
+def _shard_files(shards: list[Any]) -> dict[str, set[str]]:
+    """The files of a cache's shards (``shards``: its split's scenes), by subfolder."""
+    names = [str(shard) for shard in shards]
+    own = {name: {f"{shard}.parquet" for shard in names} for name in DATASETS}
+    own[SHARDS] = {f"{shard}{suffix}" for shard in names for suffix in (".json", ".lock")}
+    return own
+
+
+def foreign_cache_entry(out: Path) -> Path | None:
+    """The first path in a cache folder that `sianms prepare` does not write (links never are), or
+    None: what deleting the folder would take of someone else's."""
+    manifest = read_manifest(out)
+    shards = manifest["config"].get("split_scenes") if manifest is not None else None
+    own = _shard_files(shards if isinstance(shards, list) else [])
+
+    def is_own(entry: Path, names: set[str]) -> bool:
+        return (partial_of(entry.name) or entry.name) in names
+
+    for entry in sorted(out.iterdir()):
+        if entry.is_symlink() or not (entry.is_dir() or is_own(entry, {MANIFEST, FOLDER_LOCK})):
+            return entry
+        if entry.is_dir():
+            foreign = entry if entry.name not in own else first_foreign_file(entry, lambda file: is_own(file, own[entry.name]))
+            if foreign is not None:
+                return foreign
+    return None
+
+
 def _delete_cache_content(out: Path, shards: list[str]) -> None:
     """Remove the files of a cache's shards (``shards``: its split's scenes), a killed write's
     temporaries included, and the folders they leave empty. Anything else in them is yours
@@ -173,11 +202,8 @@ def _delete_cache_content(out: Path, shards: list[str]) -> None:
             raise FolderBusyError(f"{out}: shard {lock_path.stem} is being written by another sianms process; "
                                   "wait for it before --overwrite")
         held.append(descriptor)
-    names = [str(shard) for shard in shards]
-    own = {name: {f"{shard}.parquet" for shard in names} for name in DATASETS}
-    own[SHARDS] = {f"{shard}{suffix}" for shard in names for suffix in (".json", ".lock")}
     try:
-        for name, files in own.items():
+        for name, files in _shard_files(shards).items():
             folder = out / name
             if not folder.is_dir() or folder.is_symlink():
                 continue

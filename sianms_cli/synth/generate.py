@@ -234,19 +234,19 @@ def run(
     """
     check_workers(workers)
     out = Path(out).resolve()  # through a symbolic link: replace the folder it names, not the link
-    _check_output(out, overwrite=overwrite)
+    check_output(out, overwrite=overwrite)
     names = config.scene_names()
 
     def write(staging: Path) -> None:
         with _errors_name_files_under(out, staging):
             _write_dataset(staging, config, names, progress, workers)
-        _check_output(out, overwrite=overwrite)  # again: OUT may have changed during a long run
+        check_output(out, overwrite=overwrite)  # again: OUT may have changed during a long run
 
     io.build_folder(out, write)
     return SynthResult(out, config.version, len(names), len(names) * config.keyframes)
 
 
-def _check_output(out: Path, *, overwrite: bool) -> None:
+def check_output(out: Path, *, overwrite: bool) -> None:
     """Refuse an ``out`` that publishing must not replace (see the module doc)."""
     if io.is_inside_working_folder(out):
         raise SianmsError(f"{out}: is the working folder or one of its parents; synth replaces its output "
@@ -261,16 +261,23 @@ def _check_output(out: Path, *, overwrite: bool) -> None:
     if not overwrite:
         raise OutputExistsError(f"{out}: exists and is not empty; pass --overwrite to replace an earlier "
                                 "sianms synth output")
-    version = _marked_version(out)
-    if version is None:
+    if _marked_version(out) is None:
         raise OutputExistsError(f"{out}: not replaced: it has no valid {MARKER_NAME}, so it is not an earlier "
                                 f"sianms synth output (it holds '{entries[0].name}'); remove it yourself or "
                                 "choose another --out")
-    for entry in entries:
-        foreign = _foreign_within(entry, version)
-        if foreign is not None:
-            raise OutputExistsError(f"{out}: not replaced: '{foreign.relative_to(out)}' is not something sianms "
-                                    "synth writes; remove it yourself or choose another --out")
+    foreign = foreign_dataset_entry(out)
+    if foreign is not None:
+        raise OutputExistsError(f"{out}: not replaced: '{foreign.relative_to(out)}' is not something sianms "
+                                "synth writes; remove it yourself or choose another --out")
+
+
+def foreign_dataset_entry(out: Path) -> Path | None:
+    """The first path in a dataroot that `sianms synth` does not write, or None: what deleting the
+    folder would take of someone else's (a dataroot without synth's marker is all someone else's)."""
+    version = _marked_version(out)
+    if version is None:
+        return out
+    return next((foreign for entry in sorted(out.iterdir()) if (foreign := _foreign_within(entry, version))), None)
 
 
 def _marked_version(dataroot: Path) -> str | None:

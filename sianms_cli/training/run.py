@@ -62,7 +62,7 @@ import numpy as np
 import torch
 
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
-from sianms_cli.io import FolderBusyError, exclusive_lock, make_folder, partial_of, read_json, write_bytes, write_json
+from sianms_cli.io import FolderBusyError, exclusive_lock, first_foreign_file, make_folder, partial_of, read_json, write_bytes, write_json
 
 CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.json"
@@ -573,6 +573,12 @@ def _is_left_by_a_start(name: str) -> bool:
     """The folder lock, or the temporary file of a run file whose write a kill cut short: what a run
     stopped as it started leaves, which does not make the folder someone else's."""
     return name == FOLDER_LOCK_NAME or partial_of(name) in RUN_FILES
+
+
+def foreign_run_entry(path: Path) -> Path | None:
+    """The first entry of a run folder that no training writes, or None: what deleting the folder
+    would take of someone else's."""
+    return first_foreign_file(path, lambda entry: entry.name in RUN_FILES or _is_left_by_a_start(entry.name))
 
 
 def holds_run(path: Path) -> bool:
