@@ -338,7 +338,8 @@ def publish_folder(staging: Path, destination: str | Path) -> Path:
     """Move a finished ``staging`` folder to ``destination``, replacing what is there.
 
     The caller has checked that ``destination`` may be replaced. The old folder is first
-    renamed aside (one atomic step each way), then deleted.
+    renamed aside (one atomic step each way), then deleted, even when an interrupt lands during
+    the deletion (a hidden copy of a whole dataset had been left behind).
     """
     destination = Path(os.path.abspath(destination))
     with os_errors_as_output_errors(destination):
@@ -347,8 +348,16 @@ def publish_folder(staging: Path, destination: str | Path) -> Path:
             return destination
         aside = destination.with_name(f".{destination.name}.{os.getpid()}.{secrets.token_hex(4)}.replaced")
         os.replace(destination, aside)
-        os.replace(staging, destination)
-    shutil.rmtree(aside, ignore_errors=True)
+        try:
+            os.replace(staging, destination)
+        except BaseException:  # an interrupt between the two renames: the old folder goes back
+            if not destination.exists():
+                os.replace(aside, destination)
+            raise
+    try:
+        shutil.rmtree(aside, ignore_errors=True)
+    finally:  # an interrupt mid-deletion finishes it first: the old folder, renamed aside, is no one's now
+        shutil.rmtree(aside, ignore_errors=True)
     return destination
 
 

@@ -3,6 +3,7 @@
 import errno
 import os
 import stat
+from pathlib import Path
 
 import pytest
 
@@ -149,6 +150,46 @@ def test_publish_folder_replaces_and_leaves_nothing_aside(tmp_path):
     io.publish_folder(staging, destination)
     assert [p.name for p in destination.iterdir()] == ["new.txt"]
     assert [p.name for p in tmp_path.iterdir()] == ["data"]
+
+
+def test_an_interrupt_while_the_old_folder_is_deleted_still_deletes_it(tmp_path, monkeypatch):
+    destination = tmp_path / "data"
+    destination.mkdir()
+    (destination / "old.txt").write_text("old")
+    staging = io.staging_folder(destination)
+    (staging / "new.txt").write_text("new")
+    remove = io.shutil.rmtree
+    calls = []
+
+    def interrupted_once(path, *args, **kwargs):
+        calls.append(path)
+        if len(calls) == 1:
+            raise KeyboardInterrupt
+        remove(path, *args, **kwargs)
+
+    monkeypatch.setattr(io.shutil, "rmtree", interrupted_once)
+    with pytest.raises(KeyboardInterrupt):
+        io.publish_folder(staging, destination)
+    assert [p.name for p in tmp_path.iterdir()] == ["data"] and (destination / "new.txt").is_file()
+
+
+def test_an_interrupt_between_the_renames_puts_the_old_folder_back(tmp_path, monkeypatch):
+    destination = tmp_path / "data"
+    destination.mkdir()
+    (destination / "old.txt").write_text("old")
+    staging = io.staging_folder(destination)
+    replace = io.os.replace
+
+    def interrupted_second(source, target):
+        if Path(source) == staging:
+            raise KeyboardInterrupt
+        replace(source, target)
+
+    monkeypatch.setattr(io.os, "replace", interrupted_second)
+    with pytest.raises(KeyboardInterrupt):
+        io.publish_folder(staging, destination)
+    assert (destination / "old.txt").read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["data", staging.name])
 
 
 @pytest.mark.parametrize("failure", [ValueError("bad record"), KeyboardInterrupt()])
