@@ -130,7 +130,8 @@ class AtomicFile:
         except BaseException:  # an interrupt may land once the file exists, before anyone holds it
             if descriptor is not None and not hasattr(self, "stream"):
                 os.close(descriptor)
-            self.temporary.unlink(missing_ok=True)
+            with suppress(OSError):  # a read-only folder refuses even to unlink what is not there
+                self.temporary.unlink(missing_ok=True)
             _OPEN_TEMPORARIES.discard(self.temporary)
             raise
 

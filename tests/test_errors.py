@@ -190,3 +190,23 @@ def test_an_interrupt_that_lands_in_a_finaliser_is_delivered_again_without_a_tra
              "thing = Failing(); del thing")
     done = subprocess.run([sys.executable, "-c", other], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0 and "ValueError: lost in a finaliser" in done.stderr
+
+
+@pytest.mark.parametrize("failure", [TypeError("affine_transform(): incompatible function arguments"),
+                                     RuntimeError("a library's own words")])
+def test_an_error_a_library_made_of_an_interrupt_ends_as_interrupted(monkeypatch, failure):
+    """pybind11 turned the KeyboardInterrupt of a Ctrl-C into a TypeError inside matplotlib (seen
+    killing sianms report): with a signal received, any error ends as the interrupt, in one line;
+    without one it stays a bug's traceback."""
+    from typer.testing import CliRunner
+
+    from sianms_cli import processes
+    from sianms_cli.cli import _app
+
+    monkeypatch.delenv("RANK", raising=False)
+    monkeypatch.setattr(_app, "_ending_said", [])
+    result = CliRunner().invoke(probe_app(failure), ["fail"])
+    assert result.exception is failure
+    monkeypatch.setattr(processes, "_SIGNALS_RECEIVED", [signal.SIGINT])
+    result = CliRunner().invoke(probe_app(failure), ["fail"])
+    assert (result.exit_code, result.output) == (130, f"interrupted (SIGINT); {_app.INTERRUPTED}\n")

@@ -7,7 +7,7 @@ import os
 import re
 import signal
 from pathlib import Path
-from typing import Callable
+from typing import Callable, NoReturn
 
 import typer
 
@@ -171,6 +171,17 @@ def is_peer_lost(error: BaseException) -> bool:
             or any(words in str(error) for words in ("Connection reset by peer", "Connection closed by peer")))
 
 
+def raise_as_interrupted_or_again(error: Exception) -> NoReturn:
+    """End as interrupted when a signal came (a library caught its KeyboardInterrupt and raised an
+    error of its own instead: pybind11 makes it a TypeError in matplotlib's drawing), else raise
+    ``error`` on: a bug's traceback, or typer's own exit."""
+    signum = signal_received()
+    if signum is None or isinstance(error, (typer.Exit, typer.Abort)):
+        raise error
+    say_interrupted(signum == signal.SIGTERM)
+    raise typer.Exit(128 + signum) from None
+
+
 def command(name: str, group: typer.Typer | None = None) -> Callable[[Callable], Callable]:
     """Register a subcommand (of ``group``, default the root) whose failures end in one
     ``error:`` line, never a traceback.
@@ -204,12 +215,14 @@ def command(name: str, group: typer.Typer | None = None) -> Callable[[Callable],
                     say_error(f"{prefix}another process of this torchrun run stopped; its own lines or "
                               "torchrun's failure summary say why")
                 else:
-                    raise
+                    raise_as_interrupted_or_again(error)
                 raise typer.Exit(1) from None
             except KeyboardInterrupt as interrupt:
                 terminated = isinstance(interrupt, Terminated)
                 say_interrupted(terminated)
                 raise typer.Exit(143 if terminated else 130) from None
+            except Exception as error:
+                raise_as_interrupted_or_again(error)
 
         return (app if group is None else group).command(name)(run)
 
