@@ -48,6 +48,7 @@ the run folder.
 from __future__ import annotations
 
 import math
+import re
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -62,8 +63,8 @@ from sianms_cli.data.cache import complete_manifest
 from sianms_cli.data.siamese import PairingBatch, Scene, cache_feature_shape, epoch_batches, feature_statistics, \
     hardest_candidates, iter_scenes, shard_paths
 from sianms_cli.data.streams import check_stream_count, check_streams, rank_epoch_streams, stream_steps
-from sianms_cli.errors import DataFormatError, SianmsError, check_seed
-from sianms_cli.io import make_folder, write_json, write_text
+from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_seed
+from sianms_cli.io import make_folder, partial_of, read_json, write_json, write_text
 from sianms_cli.models.losses import double_margin_loss, pair_distances, positive_terms
 from sianms_cli.models.siamese import SiameseEncoder, parameter_count
 from sianms_cli.progress import SILENT, Progress
@@ -557,7 +558,9 @@ def sweep(config: SiameseConfig, dims: tuple[int, ...], out: str | Path, *, over
     Each is an ordinary run folder (resumable on its own); ``out/sweep.json`` and
     ``out/sweep.md`` tabulate d, parameters, the last epoch's validation AUC and matching F1,
     and the wall time, and are rewritten after each d so an interrupted sweep keeps its rows.
+    ``out`` must be new, empty or a sweep's (:func:`check_sweep_folder`).
     """
+    check_sweep_folder(Path(out), overwrite=overwrite, resume=resume)
     out = make_folder(out)
     rows = []
     for dim in dims:
@@ -572,6 +575,41 @@ def sweep(config: SiameseConfig, dims: tuple[int, ...], out: str | Path, *, over
             write_json(out / "sweep.json", {"config": config.resolved(), "rows": rows})
             write_text(out / "sweep.md", sweep_markdown(rows))
     return rows
+
+
+SWEEP_FILES = ("sweep.json", "sweep.md")
+_SWEEP_RUN = re.compile(r"d[0-9]+")
+
+
+def check_sweep_folder(out: Path, *, overwrite: bool, resume: bool) -> None:
+    """Refuse an ``out`` that is not a sweep's to write: one holding anything but a sweep's tables
+    (:data:`SWEEP_FILES`, a killed write's temporaries of them) and its runs' ``d<d>/`` folders
+    (each checked by its run as it starts), tables without a sweep.json of a sweep, or an
+    earlier sweep without ``resume`` or ``overwrite``: its tables are rewritten."""
+    if out.exists() and not out.is_dir():
+        raise OutputExistsError(f"{out} exists and is not a folder; choose another --out")
+    if not out.is_dir():
+        return
+    for entry in sorted(out.iterdir()):
+        own = (_SWEEP_RUN.fullmatch(entry.name) is not None if entry.is_dir()
+               else (partial_of(entry.name) or entry.name) in SWEEP_FILES)
+        if entry.is_symlink() or not own:
+            raise OutputExistsError(f"{out} holds {entry.name}, which a sianms sweep does not write; choose another --out")
+    tables = [name for name in SWEEP_FILES if (out / name).exists()]
+    if tables and not _is_sweep_record(out / "sweep.json"):
+        raise OutputExistsError(f"{out / tables[0]} is not a sianms sweep's (no sweep.json of one); choose another --out")
+    if tables and not (overwrite or resume):
+        raise OutputExistsError(f"{out} holds a sweep; pass --resume to continue it or --overwrite to replace it")
+
+
+def _is_sweep_record(path: Path) -> bool:
+    if not path.is_file():
+        return False
+    try:
+        record = read_json(path)
+    except DataFormatError:
+        return False
+    return isinstance(record, dict) and isinstance(record.get("config"), dict) and isinstance(record.get("rows"), list)
 
 
 def sweep_markdown(rows: list[dict[str, Any]]) -> str:

@@ -61,3 +61,22 @@ def test_sweep_over_d_tabulates_each_size(tiny_caches, tmp_path):
     assert (tmp_path / "sweep" / "d4" / "checkpoint.pt").is_file()
     bad = invoke("--cache", str(train), "--out", str(tmp_path / "x"), "--sweep-dims", "4,4")
     assert bad.exit_code == 2 and "--sweep-dims must list distinct positive sizes" in bad.stderr
+    again = invoke("--cache", str(train), "--val-cache", str(val), "--out", str(tmp_path / "sweep"), "--epochs", "1",
+                   "--sweep-dims", "2,4", "--quiet", *SMALL)
+    assert again.exit_code == 2 and again.stderr == (f"error: {tmp_path / 'sweep'} holds a sweep; pass --resume to "
+                                                     "continue it or --overwrite to replace it\n")
+
+
+def test_a_sweep_never_writes_over_what_it_did_not_write(tiny_caches, tmp_path):
+    """sweep.md of the user's own was rewritten without --overwrite; now a folder holding anything
+    a sweep does not write, or tables without a sweep's sweep.json, is refused, --overwrite or not."""
+    train, val = tiny_caches
+    for name, content in (("sweep.md", "my notes"), ("data.csv", "mine"), ("sweep.json", '{"mine": 1}')):
+        out = tmp_path / name
+        out.mkdir()
+        (out / name).write_text(content)
+        for flag in ("--resume", "--overwrite"):
+            done = invoke("--cache", str(train), "--val-cache", str(val), "--out", str(out), "--epochs", "1",
+                          "--sweep-dims", "2", "--quiet", flag, *SMALL)
+            assert done.exit_code == 2 and done.stderr.startswith("error: ") and done.stderr.count("\n") == 1
+            assert sorted(p.name for p in out.iterdir()) == [name] and (out / name).read_text() == content
