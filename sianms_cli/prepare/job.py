@@ -30,8 +30,8 @@ from sianms_cli.data.cache import (
 )
 from sianms_cli.data.schemas import DATASETS
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_workers
-from sianms_cli.io import (PARTIAL_SUFFIX, FolderBusyError, exclusive_lock, first_foreign_file, partial_of, release_lock,
-                          try_lock)
+from sianms_cli.io import (PARTIAL_SUFFIX, FolderBusyError, exclusive_lock, first_foreign_file, partial_of,
+                          release_lock, try_lock)
 from sianms_cli.nuscenes.fingerprint import dataset_fingerprint
 from sianms_cli.nuscenes.tables import CAMERA_CHANNELS
 from sianms_cli.processes import TASK_TORCH_THREADS, task_torch_threads, worker_pool
@@ -145,7 +145,8 @@ def claim_output(out: Path, resolved: dict[str, Any], expected: list[str], datar
     writing one of its shards. Anything else is refused: a command deletes only its own.
     """
     manifest = read_manifest(out)
-    entries = [entry.name for entry in out.iterdir() if entry.name != FOLDER_LOCK and partial_of(entry.name) != MANIFEST]
+    entries = [entry.name for entry in out.iterdir()
+               if entry.name != FOLDER_LOCK and partial_of(entry.name) != MANIFEST]
     if manifest is None and entries:
         raise OutputExistsError(
             f"{out} is not empty and is not a sianms cache (no {MANIFEST}); choose another --out")
@@ -184,7 +185,8 @@ def foreign_cache_entry(out: Path) -> Path | None:
         if entry.is_symlink() or not (entry.is_dir() or is_own(entry, {MANIFEST, FOLDER_LOCK})):
             return entry
         if entry.is_dir():
-            foreign = entry if entry.name not in own else first_foreign_file(entry, lambda file: is_own(file, own[entry.name]))
+            foreign = (entry if entry.name not in own
+                       else first_foreign_file(entry, lambda file: is_own(file, own[entry.name])))
             if foreign is not None:
                 return foreign
     return None

@@ -63,6 +63,7 @@ from sianms_cli.training.precision import MixedPrecision, check_precision, float
 from sianms_cli.training.run import (
     Checkpoint,
     RunFolder,
+    cache_inputs,
     choose_device,
     epoch_generator,
     finish_distributed,
@@ -361,7 +362,7 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
                       else None)
     folder = RunFolder.open(out, kind="fpointnet", config=plain(asdict(config)), overwrite=overwrite,
                             resume=resume, may_differ=("epochs", "device", "precision", "dataroot"),
-                            write=rank == 0)
+                            write=rank == 0, inputs=cache_inputs(config.cache, config.val_cache))
     with folder:
         unions, union_counts = None, {}
         if union_settings is not None:  # once per run: a resumed run finds them done (their key matches)

@@ -54,15 +54,17 @@ import os
 import random
 import shutil
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 import numpy as np
 import torch
 
+from sianms_cli.data.cache import cache_fingerprint, complete_manifest
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
-from sianms_cli.io import FolderBusyError, exclusive_lock, first_foreign_file, make_folder, partial_of, read_json, write_bytes, write_json
+from sianms_cli.io import (FolderBusyError, exclusive_lock, first_foreign_file, make_folder, partial_of, read_json,
+                          write_bytes, write_json)
 
 CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.json"
@@ -416,8 +418,9 @@ class RunFolder:
     """
 
     def __init__(self, path: Path, kind: str, config: dict[str, Any], resumed: Checkpoint | None,
-                 write: bool = True, replace: bool = False) -> None:
+                 write: bool = True, replace: bool = False, inputs: dict[str, str] | None = None) -> None:
         self.path, self.kind, self.config, self.resumed, self.write = path, kind, config, resumed, write
+        self.inputs = inputs  # the caches' fingerprints, kept in each checkpoint's extra
         self.replace = replace  # delete the run files found in the folder once its lock is held
         self.panels: Sequence[tuple[str, Sequence[str]]] | None = None  # curves.png layout (plot_curves)
         self._lock = None
@@ -432,7 +435,8 @@ class RunFolder:
 
     @classmethod
     def open(cls, out: str | Path, *, kind: str, config: dict[str, Any], overwrite: bool = False,
-             resume: bool = False, may_differ: Iterable[str] = (), write: bool = True) -> RunFolder:
+             resume: bool = False, may_differ: Iterable[str] = (), write: bool = True,
+             inputs: dict[str, str] | None = None) -> RunFolder:
         """Check ``out`` and return its folder; read its checkpoint when resuming.
 
         - A folder holding a run (:func:`holds_run`) is refused unless ``resume`` (continue it:
@@ -441,13 +445,16 @@ class RunFolder:
         - ``resume`` with no checkpoint yet starts afresh, when config.json gives the same config.
         - A non-empty folder that holds no run is refused, ``overwrite`` or not: it is someone else's.
         - ``write`` false (the non-zero ranks of a distributed run): check and read only.
+        - ``inputs`` (:func:`cache_inputs`) go into every checkpoint, and a resumed run's must be
+          equal: a cache prepared anew at the same path would mix two trainings in one.
         """
         path = Path(out)
         if resume and overwrite:
             raise SianmsError("--resume continues the run in the folder and --overwrite starts it afresh: pass one")
         if not write:  # rank 0 checks and may be writing config.json already: only read the checkpoint
             resumed = load_checkpoint(path / CHECKPOINT, kind) if resume and (path / CHECKPOINT).exists() else None
-            return cls(path, kind, config, resumed, write)
+            _check_inputs(path, resumed, inputs)
+            return cls(path, kind, config, resumed, write, inputs=inputs)
         if path.exists() and not path.is_dir():
             raise OutputExistsError(f"{path} exists and is not a folder; choose another --out")
         has_run = path.is_dir() and holds_run(path)
@@ -466,9 +473,10 @@ class RunFolder:
             if differ:
                 raise SianmsError(f"cannot resume {path}: the config differs in {', '.join(differ)} "
                                   "(pass the same options, or --overwrite to start afresh)")
+            _check_inputs(path, resumed, inputs)
         elif has_run and not overwrite:
             raise OutputExistsError(f"{path} holds a run; pass --resume to continue it or --overwrite to replace it")
-        return cls(path, kind, config, resumed, write, replace=has_run and overwrite)
+        return cls(path, kind, config, resumed, write, replace=has_run and overwrite, inputs=inputs)
 
     def __enter__(self) -> RunFolder:
         if self.write:
@@ -562,6 +570,8 @@ class RunFolder:
         """
         if not self.write:
             return
+        if self.inputs is not None:
+            checkpoint = replace(checkpoint, extra={**checkpoint.extra, INPUTS: self.inputs})
         save_checkpoint(self.checkpoint_path, checkpoint)
         self._saved, self._history = True, checkpoint.history
         write_bytes(self.path / METRICS, metrics_csv(checkpoint.history).encode())
@@ -573,6 +583,27 @@ def _is_left_by_a_start(name: str) -> bool:
     """The folder lock, or the temporary file of a run file whose write a kill cut short: what a run
     stopped as it started leaves, which does not make the folder someone else's."""
     return name == FOLDER_LOCK_NAME or partial_of(name) in RUN_FILES
+
+
+INPUTS = "inputs"  # a checkpoint's extra: the content fingerprints of the caches it was trained on
+
+
+def cache_inputs(cache: str | None, val_cache: str | None) -> dict[str, str]:
+    """The content fingerprints of a training's caches, by flag (:func:`cache_fingerprint`)."""
+    return {flag: cache_fingerprint(complete_manifest(path))
+            for flag, path in (("--cache", cache), ("--val-cache", val_cache)) if path is not None}
+
+
+def _check_inputs(path: Path, resumed: Checkpoint | None, inputs: dict[str, str] | None) -> None:
+    """Refuse to resume a run on caches whose content changed since its last checkpoint (a
+    checkpoint from before fingerprints were kept is taken as it is)."""
+    stored = resumed.extra.get(INPUTS) if resumed is not None and isinstance(resumed.extra, dict) else None
+    if inputs is None or not isinstance(stored, dict):
+        return
+    changed = [flag for flag in sorted(set(inputs) | set(stored)) if inputs.get(flag) != stored.get(flag)]
+    if changed:
+        raise SianmsError(f"cannot resume {path}: the content of {' and '.join(changed)} changed since the run began "
+                          "(prepared anew?); pass the caches it began on, or --overwrite to start afresh")
 
 
 def foreign_run_entry(path: Path) -> Path | None:

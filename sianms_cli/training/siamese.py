@@ -69,9 +69,9 @@ from sianms_cli.models.losses import double_margin_loss, pair_distances, positiv
 from sianms_cli.models.siamese import SiameseEncoder, parameter_count
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.training.precision import MixedPrecision, check_precision, resolve_precision
-from sianms_cli.training.run import Checkpoint, RunFolder, checkpoint_file, choose_device, epoch_generator, \
-    finish_distributed, init_distributed, load_checkpoint, load_state, plain, row_counts, seed_everything, \
-    set_learning_rate, step_decay, sum_over_ranks, writes_outputs
+from sianms_cli.training.run import Checkpoint, RunFolder, cache_inputs, checkpoint_file, choose_device, \
+    epoch_generator, finish_distributed, init_distributed, load_checkpoint, load_state, plain, row_counts, \
+    seed_everything, set_learning_rate, step_decay, sum_over_ranks, writes_outputs
 
 KIND = "siamese"
 MAX_WIDTH = 2**16  # a layer width past any sweep (the paper's: 100 to 256): a typo is refused, not allocated
@@ -407,7 +407,8 @@ def run(config: SiameseConfig, out: str | Path, *, overwrite: bool = False, resu
     precision = MixedPrecision(resolve_precision(config.precision, device), device)
     resolved = config.resolved() | {"feature_shape": list(feature_shape)}
     folder = RunFolder.open(out, kind=KIND, config=resolved, overwrite=overwrite, resume=resume,
-                            may_differ=("epochs", "device", "precision"), write=rank == 0)
+                            may_differ=("epochs", "device", "precision"), write=rank == 0,
+                            inputs=cache_inputs(config.cache, config.val_cache))
     folder.panels = CURVES
     validating = config.val_cache is not None and rank == 0
     with folder:
@@ -594,10 +595,12 @@ def check_sweep_folder(out: Path, *, overwrite: bool, resume: bool) -> None:
         own = (_SWEEP_RUN.fullmatch(entry.name) is not None if entry.is_dir()
                else (partial_of(entry.name) or entry.name) in SWEEP_FILES)
         if entry.is_symlink() or not own:
-            raise OutputExistsError(f"{out} holds {entry.name}, which a sianms sweep does not write; choose another --out")
+            raise OutputExistsError(f"{out} holds {entry.name}, which a sianms sweep does not write; "
+                                    "choose another --out")
     tables = [name for name in SWEEP_FILES if (out / name).exists()]
     if tables and not _is_sweep_record(out / "sweep.json"):
-        raise OutputExistsError(f"{out / tables[0]} is not a sianms sweep's (no sweep.json of one); choose another --out")
+        raise OutputExistsError(f"{out / tables[0]} is not a sianms sweep's (no sweep.json of one); "
+                                "choose another --out")
     if tables and not (overwrite or resume):
         raise OutputExistsError(f"{out} holds a sweep; pass --resume to continue it or --overwrite to replace it")
 

@@ -306,3 +306,24 @@ def test_a_run_killed_as_it_wrote_its_first_file_is_started_again(tmp_path):
     (out / CONFIG).unlink()
     with pytest.raises(OutputExistsError, match="holds no sianms run"):
         RunFolder.open(tmp_path / "run", kind="siamese", config={"dim": 2})
+
+
+def test_a_run_resumes_only_on_the_caches_it_began_on(tmp_path):
+    """Each checkpoint keeps its caches' content fingerprints; a cache prepared anew at the same
+    path (another seed) had been trained on from the resumed epoch on, mixing two runs in one."""
+    out = tmp_path / "run"
+    config = {"dim": 2, "epochs": 3}
+    began = {"--cache": "a" * 64, "--val-cache": "b" * 64}
+    with RunFolder.open(out, kind="siamese", config=config, inputs=began) as run:
+        _, checkpoint = small_checkpoint()
+        checkpoint.config = config
+        run.save(checkpoint, curves=False)
+    assert load_checkpoint(out / CHECKPOINT).extra["inputs"] == began
+    assert RunFolder.open(out, kind="siamese", config=config, resume=True, inputs=began).resumed.epoch == 2
+    for rank_writes in (True, False):
+        with pytest.raises(SianmsError, match=r"cannot resume .*: the content of --cache changed since the run began"):
+            RunFolder.open(out, kind="siamese", config=config, resume=True, write=rank_writes,
+                           inputs={**began, "--cache": "c" * 64})
+    with pytest.raises(SianmsError, match="the content of --val-cache changed"):
+        RunFolder.open(out, kind="siamese", config=config, resume=True, inputs={"--cache": "a" * 64})
+    assert RunFolder.open(out, kind="siamese", config=config, overwrite=True, inputs={"--cache": "c" * 64})
