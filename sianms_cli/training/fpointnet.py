@@ -64,6 +64,7 @@ from sianms_cli.training.run import (
     Checkpoint,
     RunFolder,
     cache_inputs,
+    check_losses_finite,
     choose_device,
     epoch_generator,
     finish_distributed,
@@ -394,6 +395,7 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
             losses, samples = train_epoch(trained, optimizer, config, epoch, rng, generator, samples, device,
                                           progress, precision, unions, rank, world)
             row.update(losses, train_seconds=time.perf_counter() - began)
+            check_losses_finite(row)
             if config.val_cache is not None and rank == 0:
                 row.update(validate(model, config, rng, generator, device))
             row["seconds"] = time.perf_counter() - began

@@ -585,6 +585,17 @@ def _is_left_by_a_start(name: str) -> bool:
     return name == FOLDER_LOCK_NAME or partial_of(name) in RUN_FILES
 
 
+def check_losses_finite(row: dict[str, Any]) -> None:
+    """Stop a training whose epoch ended on a non-finite loss (a learning rate far too high, or a
+    resumed checkpoint with non-finite weights): its weights are no longer numbers, and going on
+    would end in a traceback in validation or in a checkpoint that eval cannot use."""
+    bad = next((key for key, value in row.items()
+                if key.startswith("train_") and isinstance(value, float) and not math.isfinite(value)), None)
+    if bad is not None:
+        raise SianmsError(f"training diverged in epoch {row['epoch']}: {bad} is {row[bad]} at learning rate "
+                          f"{row['lr']:g}; start afresh (--overwrite) with a lower --lr")
+
+
 INPUTS = "inputs"  # a checkpoint's extra: the content fingerprints of the caches it was trained on
 
 

@@ -69,9 +69,9 @@ from sianms_cli.models.losses import double_margin_loss, pair_distances, positiv
 from sianms_cli.models.siamese import SiameseEncoder, parameter_count
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.training.precision import MixedPrecision, check_precision, resolve_precision
-from sianms_cli.training.run import Checkpoint, RunFolder, cache_inputs, checkpoint_file, choose_device, \
-    epoch_generator, finish_distributed, init_distributed, load_checkpoint, load_state, plain, row_counts, \
-    seed_everything, set_learning_rate, step_decay, sum_over_ranks, writes_outputs
+from sianms_cli.training.run import Checkpoint, RunFolder, cache_inputs, check_losses_finite, checkpoint_file, \
+    choose_device, epoch_generator, finish_distributed, init_distributed, load_checkpoint, load_state, plain, \
+    row_counts, seed_everything, set_learning_rate, step_decay, sum_over_ranks, writes_outputs
 
 KIND = "siamese"
 MAX_WIDTH = 2**16  # a layer width past any sweep (the paper's: 100 to 256): a typo is refused, not allocated
@@ -438,6 +438,7 @@ def run(config: SiameseConfig, out: str | Path, *, overwrite: bool = False, resu
             set_learning_rate(optimizer, lr)
             row: dict[str, Any] = {"epoch": epoch + 1, "lr": lr,
                                    **train_epoch(trained, optimizer, config, device, precision, epoch, rank, world)}
+            check_losses_finite(row)
             if validating:
                 row |= validate(model, config, device) | reference
                 dis_thr = row["val_dis_thr"]

@@ -10,8 +10,8 @@ import torch
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
 from sianms_cli.io import OutputError
 from sianms_cli.training.run import (
-    CHECKPOINT, CONFIG, CURVES, METRICS, Checkpoint, RunFolder, checkpoint_fingerprint, choose_device,
-    epoch_generator, load_checkpoint, load_state, metrics_csv, save_checkpoint, step_decay,
+    CHECKPOINT, CONFIG, CURVES, METRICS, Checkpoint, RunFolder, check_losses_finite, checkpoint_fingerprint,
+    choose_device, epoch_generator, load_checkpoint, load_state, metrics_csv, save_checkpoint, step_decay,
 )
 
 
@@ -327,3 +327,14 @@ def test_a_run_resumes_only_on_the_caches_it_began_on(tmp_path):
     with pytest.raises(SianmsError, match="the content of --val-cache changed"):
         RunFolder.open(out, kind="siamese", config=config, resume=True, inputs={"--cache": "a" * 64})
     assert RunFolder.open(out, kind="siamese", config=config, overwrite=True, inputs={"--cache": "c" * 64})
+
+
+def test_an_epoch_ending_on_a_non_finite_loss_stops_the_training_in_one_line():
+    """--lr 1000 made the siamese validation end in linear_sum_assignment's traceback, and
+    F-PointNets write NaN weights that eval then blamed on a results file."""
+    check_losses_finite({"epoch": 1, "lr": 1e-3, "train_loss": 0.5, "val_auc": float("nan")})  # validation may be NaN
+    for value in (float("nan"), float("inf")):
+        with pytest.raises(SianmsError) as stopped:
+            check_losses_finite({"epoch": 3, "lr": 1000.0, "train_total": value, "train_mask": 0.1})
+        assert str(stopped.value) == (f"training diverged in epoch 3: train_total is {value} at learning rate 1000; "
+                                      "start afresh (--overwrite) with a lower --lr")
