@@ -24,8 +24,10 @@ naming the file.
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
+import os
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
@@ -260,16 +262,22 @@ def cache_fingerprint(manifest: dict[str, Any]) -> str:
     return hashlib.sha256(json.dumps(content, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
+PREPARE_AGAIN = "rerun `sianms prepare` on the cache to rebuild it"
+
+
 @contextmanager
-def reading_shard(path: Path) -> Iterator[None]:
-    """Turn Arrow's error on a damaged shard file (truncated, overwritten) into a DataFormatError naming it."""
+def reading_shard(path: Path, remedy: str = PREPARE_AGAIN) -> Iterator[None]:
+    """Turn Arrow's error on a damaged Parquet file (truncated, overwritten) into a DataFormatError
+    naming it and ``remedy``; one it cannot open or find is named in the command's OS-error line."""
     try:
         yield
-    except (FileNotFoundError, PermissionError):
-        raise  # the command's OS-error line says these better
+    except (FileNotFoundError, PermissionError) as error:
+        if error.filename is not None:
+            raise
+        code = error.errno or (errno.EACCES if isinstance(error, PermissionError) else errno.ENOENT)
+        raise type(error)(code, os.strerror(code), str(path)) from None  # Arrow's own names no file
     except (pa.ArrowException, OSError):  # Arrow reports a bad footer or page header as either
-        raise DataFormatError(path, "not a readable Parquet file; rerun `sianms prepare` on the cache to rebuild "
-                                    "it") from None
+        raise DataFormatError(path, f"not a readable Parquet file; {remedy}") from None
 
 
 def read_shard_table(path: Path, columns: list[str] | None = None, filters: list | None = None) -> pa.Table:

@@ -17,6 +17,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from sianms_cli.data.cache import reading_shard
 from sianms_cli.errors import DataFormatError
 from sianms_cli.evaluation.boxes import ATTRIBUTE, BOX_DTYPE, LABEL, NO_ATTRIBUTE
 from sianms_cli.evaluation.config import load_config
@@ -46,9 +47,14 @@ PICTURE_METHODS = ("vanilla", "axis-nms", "sianms", "oracle")  # the paper's Fig
 RESULTS_META = {"use_camera": True, "use_lidar": True, "use_radar": False, "use_map": False, "use_external": False}
 
 
+def _read_scene_table(path: Path) -> pa.Table:
+    with reading_shard(path, "delete it and rerun the same `sianms eval`, which evaluates its scene again"):
+        return pq.read_table(path, schema=BOXES_SCHEMA)
+
+
 def read_boxes(paths: list[Path], sample_tokens: list[str]) -> AllBoxes:
     """The scenes' boxes tables (:data:`~.scene.BOXES_SCHEMA`) as :class:`AllBoxes`, samples indexed in ``sample_tokens``."""
-    table = pa.concat_tables([pq.read_table(path, schema=BOXES_SCHEMA) for path in paths])
+    table = pa.concat_tables([_read_scene_table(path) for path in paths])
     position = pc.index_in(table["sample_token"], value_set=pa.array(sample_tokens, pa.string()))
     if position.null_count:
         unknown = table["sample_token"].filter(position.is_null())[0].as_py()

@@ -127,3 +127,27 @@ def test_a_caches_fingerprint_is_its_content_not_the_dataroot_it_came_from():
     other_file = {"frustums/scene-1.parquet": {"rows": 3, "bytes": 10, "sha256": "b" * 64}}
     assert cache_fingerprint({**manifest, "files": other_file}) != fingerprint
     assert cache_fingerprint({**manifest, "config": {**manifest["config"], "dataset_sha256": "e" * 64}}) != fingerprint
+
+
+def test_a_shard_arrow_cannot_open_is_named_in_the_os_error_line(tmp_path):
+    """Arrow's PermissionError names no file: a shard the user may not read gave 'error: Permission
+    denied' alone."""
+    from sianms_cli.data.cache import reading_shard
+    from sianms_cli.io import describe_os_error
+
+    shard = tmp_path / "pairs" / "scene-0061.parquet"
+    with pytest.raises(PermissionError) as raised:
+        with reading_shard(shard):
+            raise PermissionError("Permission denied")
+    assert describe_os_error(raised.value) == f"{shard}: Permission denied"
+
+
+def test_a_damaged_scene_table_of_an_evaluation_is_named_with_what_to_do(tmp_path):
+    from sianms_cli.pipelines.finish import read_boxes
+
+    table = tmp_path / "scene-0103.parquet"
+    table.write_bytes(b"PAR1 not a whole file")
+    with pytest.raises(DataFormatError) as raised:
+        read_boxes([table], ["token"])
+    assert str(raised.value) == (f"{table}: not a readable Parquet file; delete it and rerun the same `sianms eval`, "
+                                 "which evaluates its scene again")
