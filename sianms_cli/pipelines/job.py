@@ -25,6 +25,7 @@ pedestrian ``pedestrian.standing``, bicycle and motorcycle ``cycle.without_rider
 
 from __future__ import annotations
 
+import math
 import re
 import shutil
 import time
@@ -97,12 +98,12 @@ class EvalConfig:
             check_classes(self.sianms_classes)
         except SianmsError as error:
             raise SianmsError(f"--sianms-classes: {error}") from None
-        if self.dis_thr is not None and not self.dis_thr > 0:
-            raise SianmsError(f"--dis-thr must be > 0, got {self.dis_thr}")
+        if self.dis_thr is not None and not (math.isfinite(self.dis_thr) and self.dis_thr > 0):
+            raise SianmsError(f"--dis-thr must be a finite number > 0, got {self.dis_thr}")
         if self.pictures < 0:
             raise SianmsError(f"--pictures must be >= 0, got {self.pictures}")
-        if not self.max_distance > 0:
-            raise SianmsError(f"--max-distance must be > 0, got {self.max_distance}")
+        if not (math.isfinite(self.max_distance) and self.max_distance > 0):
+            raise SianmsError(f"--max-distance must be a finite number > 0, got {self.max_distance}")
         check_seed(self.seed)
 
     @property
@@ -220,6 +221,8 @@ def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> bool:
         stored = read_json(marker)
         if not isinstance(stored, dict) or stored.get("kind") != KIND:
             raise OutputExistsError(f"{marker} is not a sianms evaluation's; choose another --out")
+        if not isinstance(stored.get("config"), dict):
+            raise DataFormatError(marker, f"must be an object, got {type(stored.get('config')).__name__}", field="config")
         if stored.get("config") != resolved:
             if not overwrite:
                 differing = sorted(k for k in set(resolved) | set(stored.get("config", {}))

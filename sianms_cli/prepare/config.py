@@ -52,8 +52,9 @@ class PrepareConfig:
             raise SianmsError(f"--iou-threshold must be in (0, 1], got {self.iou_threshold}")
         if not (math.isfinite(self.min_depth) and self.min_depth >= 0):
             raise SianmsError(f"--min-depth must be a finite number >= 0, got {self.min_depth}")
-        if self.max_depth is not None and not self.max_depth > self.min_depth:
-            raise SianmsError(f"--max-depth must be greater than --min-depth ({self.min_depth}), got {self.max_depth}")
+        if self.max_depth is not None and not (math.isfinite(self.max_depth) and self.max_depth > self.min_depth):
+            raise SianmsError(f"--max-depth must be a finite number greater than --min-depth ({self.min_depth}), "
+                              f"got {self.max_depth} (leave it out for no limit)")
 
     @property
     def fills_missed(self) -> bool:

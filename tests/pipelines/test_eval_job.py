@@ -10,7 +10,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from sianms_cli.errors import DataFormatError, OutputExistsError
+from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
 from sianms_cli.evaluation.algo import calc_ap
 from sianms_cli.evaluation.evaluate import read_details
 from sianms_cli.evaluation.results import read_results
@@ -295,3 +295,22 @@ def test_a_folder_claimed_by_a_run_killed_at_once_is_still_the_evaluations(tmp_p
             claim_output(out, NEW_CONFIG, overwrite=False)
     assert claim_output(out, NEW_CONFIG, overwrite=False) is False
     assert (out / "scenes").is_dir()
+
+
+@pytest.mark.parametrize("flag, value, message", [
+    ("dis_thr", float("inf"), "--dis-thr must be a finite number > 0, got inf"),
+    ("max_distance", float("inf"), "--max-distance must be a finite number > 0, got inf"),
+    ("max_distance", float("nan"), "--max-distance must be a finite number > 0, got nan"),
+])
+def test_a_flag_json_cannot_hold_is_refused(eval_inputs, flag, value, message):
+    """--dis-thr inf ran and wrote "dis_thr": Infinity into eval.json, which strict JSON readers refuse."""
+    with pytest.raises(SianmsError, match=message):
+        config_of(eval_inputs, **{flag: value})
+
+
+def test_an_eval_json_whose_config_is_not_an_object_is_named(tmp_path):
+    out = tmp_path / "eval"
+    out.mkdir()
+    (out / "eval.json").write_text(json.dumps({"kind": "sianms-eval", "config": 5, "complete": "yes"}))
+    with pytest.raises(DataFormatError, match=r"eval.json: field 'config': must be an object, got int"):
+        claim_output(out, NEW_CONFIG, overwrite=True)
