@@ -14,6 +14,7 @@ from sianms_cli.io import sha256_of
 from sianms_cli.nuscenes.classes import PAPER_CLASSES
 from sianms_cli.nuscenes.tables import check_version_name
 
+MAX_SAMPLING_RATIO = 16  # samples per bin side: detectron2 uses 0 (adaptive) or 2; the cost grows with its square
 MAX_ROI_SIZE = 64  # pixels a side: ROI Align pools 7 or 14 in practice; beyond this a feature row passes 4 MB
 
 
@@ -43,6 +44,9 @@ class PrepareConfig:
         parse_detector(self.detector)
         if self.backbone not in BACKBONES:
             raise SianmsError(f"unknown backbone '{self.backbone}'; expected one of {', '.join(BACKBONES)}")
+        if self.sampling_ratio > MAX_SAMPLING_RATIO:
+            raise SianmsError(f"--sampling-ratio must be at most {MAX_SAMPLING_RATIO} (<= 0: adaptive), "
+                              f"got {self.sampling_ratio}")
         if not 1 <= self.roi_size <= MAX_ROI_SIZE:
             raise SianmsError(f"--roi-size must be between 1 and {MAX_ROI_SIZE}, got {self.roi_size}")
         check_seed(self.seed)

@@ -86,6 +86,7 @@ PRIOR_SIZES = {
 }
 CURVES_EVERY = 10  # epochs between redraws of curves.png (about 40 panels: seconds each); also at the end
 MULTIVIEW_FOLDER = "multiview"  # RUN/multiview/<shard>.parquet: the union frustums of each cache shard
+MAX_POINTS = 2**16  # points a frustum is sampled to (the original: 1,024): a typo is refused, not allocated
 LOSS_TERMS = ("total", "mask", "center", "stage1_center", "heading_class", "heading_residual", "size_class",
               "size_residual", "corner")
 
@@ -133,6 +134,9 @@ class FPointNetConfig:
                 raise SianmsError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}")
         if self.batch_size < 2:
             raise SianmsError("--batch-size must be at least 2 (batch norm)")
+        for name in ("num_points", "num_object_points"):
+            if getattr(self, name) > MAX_POINTS:
+                raise SianmsError(f"--{name.replace('_', '-')} must be at most {MAX_POINTS:,}, got {getattr(self, name)}")
         check_stream_count(self.streams)
         checks = [
             (self.lr > 0 and math.isfinite(self.lr), f"--lr must be positive, got {self.lr}"),

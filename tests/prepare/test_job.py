@@ -258,6 +258,7 @@ def test_sweeps_need_lidar_sweeps_between_key_frames(synthetic_dataroot, tmp_pat
     (dict(min_depth=10.0, max_depth=5.0), r"--max-depth must be a finite number greater than --min-depth \(10.0\)"),
     (dict(max_depth=float("inf")), r"--max-depth must be a finite number .* got inf \(leave it out for no limit\)"),
     (dict(min_depth=-1.0), "--min-depth must be a finite number >= 0"),
+    (dict(sampling_ratio=200), r"--sampling-ratio must be at most 16 \(<= 0: adaptive\), got 200"),
     (dict(version="../escape"), "--version"),
 ])
 def test_config_validation(config, fields, message):

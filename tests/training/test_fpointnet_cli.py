@@ -2,6 +2,8 @@
 
 import json
 
+import pytest
+
 from typer.testing import CliRunner
 
 from sianms_cli.cli import app
@@ -67,3 +69,13 @@ def test_multiview_flags_reach_the_training(tiny_caches, tiny_dataroot, tmp_path
     config = json.loads((out / "config.json").read_text())
     assert config["multiview"] is True and config["max_distance"] == 40.0
     assert (out / "multiview").is_dir()
+
+
+def test_a_point_count_past_any_frustum_is_refused_as_a_flag(tmp_path):
+    """--num-points 1000000000 was accepted and ended in an out-of-memory line after the run began."""
+    from sianms_cli.errors import SianmsError
+    from sianms_cli.training.fpointnet import FPointNetConfig
+
+    for name in ("num_points", "num_object_points"):
+        with pytest.raises(SianmsError, match=f"--{name.replace('_', '-')} must be at most 65,536, got 1000000000"):
+            FPointNetConfig(cache=str(tmp_path), **{name: 1_000_000_000})
