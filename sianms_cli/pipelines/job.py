@@ -178,6 +178,20 @@ def load_models(config: EvalConfig) -> Models:
                   siamese_sha256=checkpoint_fingerprint(siamese), fpointnet_sha256=checkpoint_fingerprint(fpointnet))
 
 
+def check_feature_shape(cache: Path, encoder_shape: tuple[int, int, int], siamese: str) -> None:
+    """Refuse, before anything is written, a cache whose ROI features the siamese encoder of the run
+    ``siamese`` cannot take (another backbone or --roi-size than its training cache's)."""
+    from sianms_cli.data.siamese import cache_feature_shape
+    from sianms_cli.training.run import checkpoint_file
+
+    checkpoint = checkpoint_file(siamese)
+    shape = cache_feature_shape(cache)
+    if shape != tuple(encoder_shape):
+        raise DataFormatError(cache / "manifest.json", f"ROI features of shape {shape}, but the siamese encoder of "
+                              f"{checkpoint} takes {tuple(encoder_shape)}: prepare the cache with the backbone and "
+                              "--roi-size of its training cache", field="config.roi_size")
+
+
 FINISH_FIELDS = ("methods", "nms_sweep", "axis_mode", "pictures")  # decide only which boxes each method reports
 
 
@@ -390,6 +404,7 @@ def run(config: EvalConfig, out: str | Path, *, overwrite: bool = False, progres
     cache = Path(config.cache)
     cache_config = cache_settings(cache, db, config.split, names)
     models = load_models(config)
+    check_feature_shape(cache, models.encoder.feature_shape, config.siamese)
     resolved = resolved_config(config, db, names, models)
     settings = scene_settings(config, cache_config, models.dis_thr)
     with exclusive_lock(out / LOCK, what=str(out), blocking=True):

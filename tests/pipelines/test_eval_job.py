@@ -314,3 +314,16 @@ def test_an_eval_json_whose_config_is_not_an_object_is_named(tmp_path):
     (out / "eval.json").write_text(json.dumps({"kind": "sianms-eval", "config": 5, "complete": "yes"}))
     with pytest.raises(DataFormatError, match=r"eval.json: field 'config': must be an object, got int"):
         claim_output(out, NEW_CONFIG, overwrite=True)
+
+
+def test_a_cache_the_encoder_cannot_take_is_refused_before_anything_is_written(eval_inputs, tmp_path):
+    """ROI features of another --roi-size were refused only in the first scene, after eval.json and
+    scenes/ were written: the rerun with the right cache then met 'another config'."""
+    from sianms_cli.data.siamese import cache_feature_shape
+    from sianms_cli.pipelines.job import check_feature_shape
+
+    check_feature_shape(Path(eval_inputs.cache), cache_feature_shape(eval_inputs.cache), str(eval_inputs.siamese))
+    with pytest.raises(DataFormatError, match=r"manifest.json: field 'config.roi_size': ROI features of shape "
+                                              r"\(\d+, \d+, \d+\), but the siamese encoder of .*checkpoint.pt takes "
+                                              r"\(64, 5, 5\)"):
+        check_feature_shape(Path(eval_inputs.cache), (64, 5, 5), str(eval_inputs.siamese))
