@@ -133,9 +133,9 @@ def finished_record(root: Path, shard: str) -> dict[str, Any] | None:
         record = json.loads((root / SHARDS / f"{shard}.json").read_text(encoding="utf-8"))
     except (FileNotFoundError, ValueError):  # absent, or not JSON: the shard is redone
         return None
-    files = record.get("files") if isinstance(record, dict) else None
-    if not isinstance(files, dict):
+    if not _is_shard_record(record, shard):  # edited or damaged: the shard is redone
         return None
+    files = record["files"]
     for name in DATASETS:
         path = root / name / f"{shard}.parquet"
         if not path.is_file():
@@ -145,6 +145,21 @@ def finished_record(root: Path, shard: str) -> dict[str, Any] | None:
         if not intact:
             return None
     return record
+
+
+def _is_count(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def _is_shard_record(record: Any, shard: str) -> bool:
+    """Whether a completion record has the form the manifest is summed from: a sample count, and
+    for exactly the shard's files a row count each (and a size, where recorded)."""
+    files = record.get("files") if isinstance(record, dict) else None
+    if not (isinstance(files, dict) and set(files) == {f"{name}/{shard}.parquet" for name in DATASETS}):
+        return False
+    return _is_count(record.get("samples", 0)) and all(
+        isinstance(info, dict) and _is_count(info.get("rows")) and (info.get("bytes") is None or _is_count(info["bytes"]))
+        for info in files.values())
 
 
 def _has_footer(path: Path) -> bool:

@@ -73,6 +73,24 @@ def test_an_unreadable_completion_record_is_not_finished(tmp_path):
     assert not shard_done(tmp_path, "s")
 
 
+@pytest.mark.parametrize("edit", [
+    lambda record: record.update(samples="x"),
+    lambda record: record.update(samples=-1),
+    lambda record: record["files"]["detections/s.parquet"].update(rows="x"),
+    lambda record: record["files"]["pairs/s.parquet"].update(bytes=True),
+    lambda record: record["files"].update({"../../etc/passwd": {"rows": 1}}),
+    lambda record: record["files"].pop("frustums/s.parquet"),
+])
+def test_a_completion_record_of_another_form_is_not_finished(tmp_path, edit):
+    """A record edited by hand ended the next prepare in a TypeError or KeyError traceback as the
+    manifest summed it; now the shard is redone."""
+    record = write_shard(tmp_path)
+    edit(record)
+    (tmp_path / "_shards" / "s.json").write_text(json.dumps(record))
+    assert not shard_done(tmp_path, "s")
+    assert write_manifest(tmp_path, {"seed": 0}, ["s"], tmp_path)["missing_shards"] == ["s"]
+
+
 def test_every_reader_names_the_truncated_shard(tmp_path):
     write_shard(tmp_path)
     detections, frustums, pairs = (tmp_path / name / "s.parquet" for name in ("detections", "frustums", "pairs"))
