@@ -158,8 +158,8 @@ def _is_shard_record(record: Any, shard: str) -> bool:
     if not (isinstance(files, dict) and set(files) == {f"{name}/{shard}.parquet" for name in DATASETS}):
         return False
     return _is_count(record.get("samples", 0)) and all(
-        isinstance(info, dict) and _is_count(info.get("rows")) and (info.get("bytes") is None or _is_count(info["bytes"]))
-        for info in files.values())
+        isinstance(info, dict) and _is_count(info.get("rows"))
+        and (info.get("bytes") is None or _is_count(info["bytes"])) for info in files.values())
 
 
 def _has_footer(path: Path) -> bool:

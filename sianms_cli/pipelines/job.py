@@ -236,7 +236,8 @@ def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> bool:
         if not isinstance(stored, dict) or stored.get("kind") != KIND:
             raise OutputExistsError(f"{marker} is not a sianms evaluation's; choose another --out")
         if not isinstance(stored.get("config"), dict):
-            raise DataFormatError(marker, f"must be an object, got {type(stored.get('config')).__name__}", field="config")
+            raise DataFormatError(marker, f"must be an object, got {type(stored.get('config')).__name__}",
+                                  field="config")
         if stored.get("config") != resolved:
             if not overwrite:
                 differing = sorted(k for k in set(resolved) | set(stored.get("config", {}))

@@ -136,7 +136,8 @@ class FPointNetConfig:
             raise SianmsError("--batch-size must be at least 2 (batch norm)")
         for name in ("num_points", "num_object_points"):
             if getattr(self, name) > MAX_POINTS:
-                raise SianmsError(f"--{name.replace('_', '-')} must be at most {MAX_POINTS:,}, got {getattr(self, name)}")
+                raise SianmsError(f"--{name.replace('_', '-')} must be at most {MAX_POINTS:,}, "
+                                  f"got {getattr(self, name)}")
         check_stream_count(self.streams)
         checks = [
             (self.lr > 0 and math.isfinite(self.lr), f"--lr must be positive, got {self.lr}"),
