@@ -19,7 +19,7 @@ from __future__ import annotations
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
@@ -56,6 +56,33 @@ class GlobalBoxes:
         return len(self.yaw)
 
 
+def _checked_classes(path: Path, classes: Any, mean_sizes: Any) -> tuple[tuple[str, ...], np.ndarray]:
+    """A checkpoint's classes (distinct names) and their size clusters ((K, 3) finite, > 0 metres),
+    one per class: what the one-hot vector and the size head are built from."""
+    if not (isinstance(classes, (list, tuple)) and classes and all(isinstance(name, str) for name in classes)
+            and len(set(classes)) == len(classes)):
+        raise DataFormatError(path, f"must be a list of distinct class names, got {classes!r}",
+                              field="extra.classes")
+    try:
+        sizes = np.asarray(mean_sizes, dtype=np.float32)
+    except (TypeError, ValueError):
+        sizes = np.zeros((0,), dtype=np.float32)
+    if sizes.shape != (len(classes), 3) or not (np.isfinite(sizes).all() and (sizes > 0).all()):
+        raise DataFormatError(path, f"must be {len(classes)} rows (one per class) of 3 sizes > 0 in metres",
+                              field="extra.mean_sizes")
+    return tuple(classes), sizes
+
+
+def _checked_count(path: Path, config: dict[str, Any], key: str) -> int:
+    from sianms_cli.training.fpointnet import MAX_POINTS
+
+    value = config.get(key)
+    if not (isinstance(value, int) and not isinstance(value, bool) and 1 <= value <= MAX_POINTS):
+        raise DataFormatError(path, f"must be a whole number in [1, {MAX_POINTS:,}], got {value!r}",
+                              field=f"config.{key}")
+    return value
+
+
 class FPointNetPredictor:
     """A trained Frustum PointNets v1 (a ``sianms train fpointnet`` run) ready to predict boxes.
 
@@ -77,15 +104,15 @@ class FPointNetPredictor:
         for key in ("classes", "mean_sizes"):
             if key not in extra:
                 raise DataFormatError(path, "the checkpoint lacks what inference needs", field=f"extra.{key}")
+        classes, mean_sizes = _checked_classes(path, extra["classes"], extra["mean_sizes"])
         self.path = path
-        self.classes: tuple[str, ...] = tuple(extra["classes"])
-        self.num_points = int(config["num_points"])
+        self.classes: tuple[str, ...] = classes
+        self.num_points = _checked_count(path, config, "num_points")
         self.intensity = bool(config["intensity"])
         self.min_box_height = float(config["min_box_height"])
         self.device = torch.device(device)
-        self.model = FPointNetV1(torch.as_tensor(np.asarray(extra["mean_sizes"], dtype=np.float32)),
-                                 4 if self.intensity else 3,
-                                 num_object_points=int(config["num_object_points"])).to(self.device)
+        self.model = FPointNetV1(torch.as_tensor(mean_sizes), 4 if self.intensity else 3,
+                                 num_object_points=_checked_count(path, config, "num_object_points")).to(self.device)
         load_state(self.model, checkpoint.model, path)
         self.model.eval()
 

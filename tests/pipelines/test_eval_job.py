@@ -327,3 +327,26 @@ def test_a_cache_the_encoder_cannot_take_is_refused_before_anything_is_written(e
                                               r"\(\d+, \d+, \d+\), but the siamese encoder of .*checkpoint.pt takes "
                                               r"\(64, 5, 5\)"):
         check_feature_shape(Path(eval_inputs.cache), (64, 5, 5), str(eval_inputs.siamese))
+
+
+@pytest.mark.parametrize("edit, field", [
+    (lambda c: c.extra.update(mean_sizes="x"), "extra.mean_sizes"),
+    (lambda c: c.extra.update(mean_sizes=[[4.0, 1.8, float("nan")]] * len(c.extra["classes"])), "extra.mean_sizes"),
+    (lambda c: c.extra.update(classes=5), "extra.classes"),
+    (lambda c: c.extra.update(classes=["car"]), "extra.mean_sizes"),  # one class, three size clusters
+    (lambda c: c.config.update(num_points="x"), "config.num_points"),
+    (lambda c: c.config.update(num_points=0), "config.num_points"),
+    (lambda c: c.config.update(num_object_points=-5), "config.num_object_points"),
+])
+def test_a_hand_edited_fpointnet_checkpoint_is_named_with_its_field(eval_inputs, edit, field):
+    """Each of these had ended eval in a traceback (ValueError, TypeError, IndexError, or a matrix
+    product of mismatched shapes)."""
+    from sianms_cli.pipelines.inference import FPointNetPredictor
+    from sianms_cli.training.run import checkpoint_file, load_checkpoint
+
+    path = checkpoint_file(eval_inputs.fpointnet)
+    checkpoint = load_checkpoint(path, "fpointnet")
+    FPointNetPredictor(checkpoint, path)
+    edit(checkpoint)
+    with pytest.raises(DataFormatError, match=f"checkpoint.pt: field '{field}': must be"):
+        FPointNetPredictor(checkpoint, path)
