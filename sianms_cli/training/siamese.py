@@ -496,11 +496,12 @@ def encoder_from_checkpoint(checkpoint: Checkpoint, path: Path,
         raise DataFormatError(path, f"the stored config lacks {missing or ['feature_shape']}: not a siamese run's "
                               "checkpoint", field="config")
     dis_thr = checkpoint.extra.get("dis_thr")
-    if not isinstance(dis_thr, (int, float)) or not math.isfinite(dis_thr):
-        raise DataFormatError(path, f"no finite matching threshold (got {dis_thr!r})", field="extra.dis_thr")
+    if not (isinstance(dis_thr, (int, float)) and not isinstance(dis_thr, bool) and math.isfinite(dis_thr)
+            and dis_thr > 0):
+        raise DataFormatError(path, f"no finite matching threshold > 0 (got {dis_thr!r})", field="extra.dis_thr")
     try:
         model = build_model(config, tuple(int(v) for v in shape))
-    except (TypeError, ValueError) as error:
+    except (TypeError, ValueError, RuntimeError) as error:  # torch refuses a negative width with a RuntimeError
         raise DataFormatError(path, f"the stored config does not describe an encoder ({error})",
                               field="config") from None
     state = dict(checkpoint.model)

@@ -81,6 +81,10 @@ def test_a_wrong_file_is_one_clear_error(tiny_run, tmp_path):
                                       extra={"feature_shape": good.extra["feature_shape"]}),
         "other-dim.pt": Checkpoint(kind="siamese", config={**good.config, "dim": 9}, epoch=1, model=good.model,
                                    extra=good.extra),
+        "negative-threshold.pt": Checkpoint(kind="siamese", config=good.config, epoch=1, model=good.model,
+                                            extra={**good.extra, "dis_thr": -1.0}),
+        "negative-width.pt": Checkpoint(kind="siamese", config={**good.config, "hidden": [-1]}, epoch=1,
+                                        model=good.model, extra=good.extra),
     }
     for name, checkpoint in cases.items():
         if checkpoint is not None:
@@ -89,6 +93,8 @@ def test_a_wrong_file_is_one_clear_error(tiny_run, tmp_path):
     torch.save(SiameseConfig(cache="c"), tmp_path / "pickled.pt")
     expected = {"missing.pt": "file not found", "fpointnet.pt": "a 'fpointnet' checkpoint, expected 'siamese'",
                 "no-threshold.pt": "extra.dis_thr", "other-dim.pt": "model.head",
+                "negative-threshold.pt": r"field 'extra.dis_thr': no finite matching threshold > 0 \(got -1.0\)",
+                "negative-width.pt": "field 'config': the stored config does not describe an encoder",
                 "foreign.pt": "unexpected keys \\['surprise'\\]", "pickled.pt": "weights-only load refused"}
     for name, message in expected.items():
         with pytest.raises(DataFormatError, match=message) as caught:
