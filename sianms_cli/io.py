@@ -357,8 +357,9 @@ def publish_folder(staging: Path, destination: str | Path) -> Path:
             raise
     try:
         shutil.rmtree(aside, ignore_errors=True)
-    finally:  # an interrupt mid-deletion finishes it first: the old folder, renamed aside, is no one's now
+    except BaseException:  # an interrupt mid-deletion finishes it first: the old folder, renamed aside, is no one's now
         shutil.rmtree(aside, ignore_errors=True)
+        raise
     return destination
 
 
