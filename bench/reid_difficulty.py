@@ -301,7 +301,7 @@ def siamese_embeddings(cache: Path, checkpoint: str, device: str, detections: Ca
 
     encoder, _ = load_encoder(checkpoint, device)
     column = read_dataset(cache, "detections", ["roi_feature"])["roi_feature"].take(rows)
-    features = decode_roi_features(column, cache_feature_shape(cache))
+    features = decode_roi_features(column, cache_feature_shape(cache), Path(cache) / "detections")
     embedding = np.full((len(detections), encoder.dim), np.nan)
     embedding[rows] = embed(encoder, features)
     return embedding

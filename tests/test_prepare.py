@@ -62,7 +62,7 @@ def test_writes_three_datasets_and_a_manifest(cache, config):
     detections = read_dataset(cache, "detections")
     shape = roi_feature_shape(cache / "detections" / "scene-0061.parquet")
     assert shape == (64, 7, 7)
-    features = decode_roi_features(detections.column("roi_feature"), shape)
+    features = decode_roi_features(detections.column("roi_feature"), shape, cache / "detections")
     assert features.dtype == np.float16 and features.shape == (detections.num_rows, 64, 7, 7)
     assert np.isfinite(features).all() and features.astype(np.float64).std() > 0  # float16 sums overflow
     sources = set(detections.column("source").to_pylist())

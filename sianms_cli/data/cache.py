@@ -27,6 +27,7 @@ from __future__ import annotations
 import errno
 import hashlib
 import json
+import math
 import os
 from contextlib import contextmanager
 from pathlib import Path
@@ -260,7 +261,10 @@ def complete_manifest(cache: str | Path) -> dict[str, Any]:
     manifest = read_manifest(Path(cache))
     if manifest is None:
         raise DataFormatError(path, "not found: not a `sianms prepare` cache (run `sianms prepare` first)")
-    if manifest.get("complete") is not True:
+    if not isinstance(manifest.get("complete"), bool):  # JSON 1 or "yes" is no answer
+        raise DataFormatError(path, f"must be true or false, got {json.dumps(manifest.get('complete'))}; "
+                                    "rerun `sianms prepare` with the same flags to rewrite it", field="complete")
+    if not manifest["complete"]:
         missing = manifest.get("missing_shards")
         expected = manifest.get("shards_expected")
         count = f"{len(missing)} of {expected}" if isinstance(missing, list) and isinstance(expected, int) else "some"
@@ -336,13 +340,32 @@ def roi_feature_shape(path: Path) -> tuple[int, ...]:
     shape = metadata.get(b"sianms.roi_feature_shape")
     if shape is None:
         raise DataFormatError(path, "no sianms.roi_feature_shape in the schema metadata")
-    return tuple(int(v) for v in shape.decode().split(","))
+    text = shape.decode(errors="replace")
+    sizes = text.split(",")
+    if len(sizes) != 3 or not all(size.isdecimal() and 1 <= int(size) <= MAX_ROI_FEATURE_SIZE for size in sizes):
+        raise DataFormatError(path, f"sianms.roi_feature_shape must be 'C,PH,PW', three whole numbers in "
+                                    f"[1, {MAX_ROI_FEATURE_SIZE:,}], got '{text}'; {PREPARE_AGAIN}")
+    return tuple(int(size) for size in sizes)
 
 
-def decode_roi_features(column: pa.ChunkedArray | pa.Array | list[bytes], shape: tuple[int, ...]) -> np.ndarray:
-    """(N, C, PH, PW) float16 features from a ``roi_feature`` column."""
-    if isinstance(column, (pa.ChunkedArray, pa.Array)):
-        column = column.to_pylist()
+MAX_ROI_FEATURE_SIZE = 2**16  # past any backbone's channels or pooled size: an edited shape is refused
+
+
+def decode_roi_features(column: pa.ChunkedArray | pa.Array | list[bytes], shape: tuple[int, ...],
+                        path: Path) -> np.ndarray:
+    """(N, C, PH, PW) float16 features from a ``roi_feature`` column of the detections file(s) at
+    ``path``; a feature whose size is not the shape's raises DataFormatError naming them."""
+    if not isinstance(column, (pa.ChunkedArray, pa.Array)):
+        column = pa.array(column, pa.binary())
     if len(column) == 0:
         return np.zeros((0, *shape), dtype=np.float16)
+    expected = 2 * math.prod(shape)
+    lengths = pc.binary_length(column).fill_null(-1).to_numpy(zero_copy_only=False)
+    wrong = np.flatnonzero(lengths != expected)
+    if len(wrong):
+        got = "null" if lengths[wrong[0]] < 0 else f"{lengths[wrong[0]]:,} bytes"
+        raise DataFormatError(path, f"row {wrong[0]}: a feature of {got} where the shape "
+                                    f"{','.join(map(str, shape))} in float16 takes {expected:,} bytes; {PREPARE_AGAIN}",
+                              field="roi_feature")
+    column = column.to_pylist()
     return np.frombuffer(b"".join(column), dtype="<f2").reshape(len(column), *shape)

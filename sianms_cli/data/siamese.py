@@ -130,7 +130,7 @@ def _scene_from_tables(detections: pa.Table, pairs: pa.Table, shape: tuple[int, 
                  camera=detections.column("camera").to_numpy().astype(object),
                  sample=sample, instance=instance, instance_tokens=tokens,
                  overlap=_overlap_masks(detections.column("overlap_pairs"), names),
-                 features=decode_roi_features(detections.column("roi_feature"), shape),
+                 features=decode_roi_features(detections.column("roi_feature"), shape, path),
                  pair_rows=np.stack([column.to_numpy(zero_copy_only=False) for column in rows], axis=1).astype(np.int64)
                  .reshape(-1, 2), pair_names=pair_names)
 
@@ -173,7 +173,7 @@ def feature_statistics(cache: str | Path) -> tuple[np.ndarray, np.ndarray, int]:
     count = 0
     for path in shard_paths(cache):
         column = read_shard_table(path, columns=["roi_feature"]).column("roi_feature")
-        features = decode_roi_features(column, shape).astype(np.float64)
+        features = decode_roi_features(column, shape, path).astype(np.float64)
         total += features.sum(axis=(0, 2, 3))
         squares += np.square(features).sum(axis=(0, 2, 3))
         count += len(features)

@@ -5,10 +5,12 @@ import json
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 
 from sianms_cli.data.cache import (
-    ShardWriter, cache_fingerprint, complete_manifest, read_dataset, read_shard_table, roi_feature_shape, shard_done, write_manifest,
+    PREPARE_AGAIN, ShardWriter, cache_fingerprint, complete_manifest, read_dataset, read_shard_table, roi_feature_shape,
+    shard_done, write_manifest,
 )
 from sianms_cli.data.frustum_dataset import FrustumSelection, read_shard
 from sianms_cli.data.index import build_pair_index
@@ -111,6 +113,35 @@ def test_every_reader_names_the_truncated_shard(tmp_path):
         assert str(error.value) == f"{detections}: {UNREADABLE}"
 
 
+def edit_roi_feature_shape(path, shape):
+    """Rewrite a detections file with ``shape`` as its schema's ``sianms.roi_feature_shape``."""
+    table = pq.read_table(path)
+    metadata = {**table.schema.metadata, b"sianms.roi_feature_shape": shape}
+    pq.write_table(table.replace_schema_metadata(metadata), path)
+
+
+@pytest.mark.parametrize("shape", [b"1,x,2", b"1,2", b"1,2,2,2", b"0,2,2", b"-1,2,2", b"1,2,99999999", b""])
+def test_an_edited_roi_feature_shape_is_named(tmp_path, shape):
+    write_shard(tmp_path)
+    detections = tmp_path / "detections" / "s.parquet"
+    edit_roi_feature_shape(detections, shape)
+    for read in (lambda: roi_feature_shape(detections), lambda: list(iter_scenes(tmp_path))):
+        with pytest.raises(DataFormatError) as error:
+            read()
+        assert str(error.value) == (f"{detections}: sianms.roi_feature_shape must be 'C,PH,PW', three whole numbers "
+                                    f"in [1, 65,536], got '{shape.decode()}'; {PREPARE_AGAIN}")
+
+
+def test_features_of_another_size_than_the_schema_says_are_named(tmp_path):
+    write_shard(tmp_path)
+    detections = tmp_path / "detections" / "s.parquet"
+    edit_roi_feature_shape(detections, b"2,2,2")
+    with pytest.raises(DataFormatError) as error:
+        list(iter_scenes(tmp_path))
+    assert str(error.value) == (f"{detections}: field 'roi_feature': row 0: a feature of 8 bytes where the shape "
+                                f"2,2,2 in float16 takes 16 bytes; {PREPARE_AGAIN}")
+
+
 def test_a_missing_shard_file_is_left_to_the_os_error_line(tmp_path):
     with pytest.raises(FileNotFoundError):
         read_shard_table(tmp_path / "detections" / "s.parquet")
@@ -133,6 +164,12 @@ def test_readers_refuse_a_folder_without_manifest_or_an_incomplete_cache(tmp_pat
                                 "(2 of 3 shards missing); rerun `sianms prepare` with the same flags to finish it")
     written = write_manifest(tmp_path, {"seed": 0}, ["s"], tmp_path)
     assert complete_manifest(tmp_path) == written
+    for edited in ("yes", 1, None):  # "yes" had been read as "0 of 1 shards missing", 1 as complete
+        (tmp_path / "manifest.json").write_text(json.dumps({**written, "complete": edited}))
+        with pytest.raises(DataFormatError) as error:
+            complete_manifest(tmp_path)
+        assert str(error.value) == (f"{tmp_path / 'manifest.json'}: field 'complete': must be true or false, got "
+                                    f"{json.dumps(edited)}; rerun `sianms prepare` with the same flags to rewrite it")
 
 
 def test_a_caches_fingerprint_is_its_content_not_the_dataroot_it_came_from():
