@@ -138,8 +138,9 @@ def reidentification(boxes: AllBoxes, gated: bool = False) -> dict[str, dict[str
 
 
 def finish(db: NuScenesDB, config, out: Path, scene_paths: list[Path], timings: dict[str, float],
-           progress: Progress) -> dict[str, Any]:
-    """Write every method's results, metrics and curves, the table and the re-identification figures."""
+           progress: Progress) -> tuple[dict[str, Any], list[str]]:
+    """Write every method's results, metrics and curves, the table and the re-identification figures;
+    return the table and the names of the pictures drawn."""
     from sianms_cli.reporting.eval_pictures import draw_pr_curves
     from sianms_cli.reporting.eval_table import TABLE_CLASS, eval_table, table_markdown
 
@@ -177,17 +178,21 @@ def finish(db: NuScenesDB, config, out: Path, scene_paths: list[Path], timings: 
     write_json(out / "table.json", table)
     write_text(out / "table.md", table_markdown(table))
     started = time.perf_counter()
-    draw_pictures(db, config, out, boxes, split.sample_tokens, next(iter(reports.values())).cfg.class_names)
+    pictures = draw_pictures(db, config, out, boxes, split.sample_tokens,
+                             next(iter(reports.values())).cfg.class_names)
     timings["pictures_s"] = time.perf_counter() - started
-    return table
+    return table, pictures
 
 
-def draw_pictures(db: NuScenesDB, config, out: Path, boxes: AllBoxes, sample_tokens, classes) -> None:
-    """``pictures/<sample>.png`` for the samples :func:`~sianms_cli.reporting.eval_pictures.pick_samples` picks."""
+def draw_pictures(db: NuScenesDB, config, out: Path, boxes: AllBoxes, sample_tokens, classes) -> list[str]:
+    """``pictures/<sample>.png`` for the samples :func:`~sianms_cli.reporting.eval_pictures.pick_samples` picks;
+    their file names."""
     from sianms_cli.reporting.eval_pictures import draw_sample, pick_samples
 
     shown = [m for m in PICTURE_METHODS if m in config.method_names] or list(config.method_names[:4])
     selections = {method: select(boxes, method, config.axis_mode) for method in shown}
+    names = []
     for sample in pick_samples(boxes, config.pictures):
-        draw_sample(out / "pictures" / f"{sample_tokens[sample]}.png", db, sample_tokens[sample], sample, boxes,
-                    selections, tuple(classes))
+        names.append(f"{sample_tokens[sample]}.png")
+        draw_sample(out / "pictures" / names[-1], db, sample_tokens[sample], sample, boxes, selections, tuple(classes))
+    return names

@@ -253,7 +253,7 @@ def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> bool:
                                         "sianms eval writes; remove it yourself or choose another --out")
             for entry in stale:
                 shutil.rmtree(entry) if entry.is_dir() else entry.unlink()
-        elif stored.get("complete"):
+        elif stored.get("complete") is True:  # an edited "yes" is not a finished evaluation: resume it
             return True
     write_marker(out, resolved, {}, complete=False)  # before the scenes' folder: a folder without it is not eval's
     make_folder(out / SCENES)
@@ -268,8 +268,11 @@ def _first_foreign(out: Path, entries: list[Path], stored: dict[str, Any]) -> Pa
     config = stored.get("config")
     scenes = config.get("split_scenes") if isinstance(config, dict) else None
     scenes = frozenset(name for name in scenes if isinstance(name, str)) if isinstance(scenes, list) else frozenset()
+    pictures = stored.get("pictures")
+    pictures = frozenset(name for name in pictures if isinstance(name, str)) if isinstance(pictures, list) else None
     return next((entry for entry in entries + inside
-                 if not _is_eval_entry(entry, "" if entry.parent == out else entry.parent.name, scenes)), None)
+                 if not _is_eval_entry(entry, "" if entry.parent == out else entry.parent.name, scenes, pictures)),
+                None)
 
 
 def foreign_eval_entry(out: Path) -> Path | None:
@@ -292,11 +295,13 @@ def refuse_foreign_folder(out: Path) -> list[Path]:
     return entries
 
 
-def _is_eval_entry(entry: Path, folder: str = "", scenes: frozenset[str] = frozenset()) -> bool:
+def _is_eval_entry(entry: Path, folder: str = "", scenes: frozenset[str] = frozenset(),
+                   pictures: frozenset[str] | None = None) -> bool:
     """Whether an entry of an evaluation folder (of its subfolder ``folder``: scenes, pictures) is one
     `sianms eval` writes there, a killed write's temporary file of one, or `sianms report`'s default
     report folder: what ``--overwrite`` may delete. In ``scenes`` only the tables and locks of the
-    evaluation's own scenes (``scenes``: its split's) are; links never are."""
+    evaluation's own scenes (``scenes``: its split's) are, in ``pictures`` only the pictures its
+    eval.json lists (any .png of a run that stopped before it listed them); links never are."""
     if entry.is_symlink():
         return False
     partial = partial_of(entry.name)
@@ -306,7 +311,7 @@ def _is_eval_entry(entry: Path, folder: str = "", scenes: frozenset[str] = froze
             stem, _, extension = name.rpartition(".")
             return extension in ("parquet", "lock") and stem in scenes
         if folder:
-            return folder == PICTURES and name.endswith(".png")
+            return folder == PICTURES and name.endswith(".png") and (pictures is None or name in pictures)
         return name in (MARKER, LOCK) or _EVAL_FILE.fullmatch(name) is not None
     if not entry.is_dir() or partial or folder:
         return False
@@ -431,7 +436,7 @@ def run(config: EvalConfig, out: str | Path, *, overwrite: bool = False, progres
         return result
     with exclusive_lock(out / LOCK, what=str(out), blocking=True):
         timings = {"scenes_s": scenes_seconds}
-        result.table = finish(db, config, out, [scene_path(out, name) for name in names], timings, progress)
-        result.manifest = write_marker(out, resolved, {"timings": timings}, complete=True)
+        result.table, pictures = finish(db, config, out, [scene_path(out, name) for name in names], timings, progress)
+        result.manifest = write_marker(out, resolved, {"timings": timings, "pictures": pictures}, complete=True)
     return result
 

@@ -38,6 +38,8 @@ def test_every_method_writes_valid_results_metrics_and_the_table(evaluated):
     out, result = evaluated
     marker = json.loads((out / "eval.json").read_text())
     assert marker["complete"] and marker["missing_scenes"] == [] and marker["scenes_expected"] == 2
+    assert sorted(marker["pictures"]) == sorted(path.name for path in (out / "pictures").iterdir())
+    assert marker["pictures"]
     names = list(METHODS) + ["axis-nms@0.1", "rotated-nms@0.1"]
     assert sorted(result.table["methods"]) == sorted(names)
     samples = None
@@ -173,7 +175,8 @@ def stale_evaluation(out):
     """A hand-made evaluation folder of :data:`STALE_CONFIG` holding what `sianms eval` and
     `sianms report EVAL` write there (as a real one, tests/pipelines' ``evaluated``, shows)."""
     (out / "scenes").mkdir(parents=True)
-    (out / "eval.json").write_text(json.dumps({"kind": "sianms-eval", "config": STALE_CONFIG, "complete": True}))
+    (out / "eval.json").write_text(json.dumps({"kind": "sianms-eval", "config": STALE_CONFIG, "complete": True,
+                                               "pictures": ["0123abcd.png"]}))
     (out / ".eval.lock").write_text("1\n")
     for name in ("results_vanilla.json", "metrics_sianms.json", "metrics_details_gated-sianms.json",
                  "results_axis-nms@0.05.json", "metrics_details_rotated-nms@0.1.json", "table.json", "table.md",
@@ -197,7 +200,7 @@ def test_overwrite_replaces_a_stale_evaluation_and_its_report(tmp_path):
 
 
 @pytest.mark.parametrize("foreign", ["notes.txt", "photos/a.jpg", "results_final.json", "metrics_vanilla.json.bak",
-                                     "report/", "report/notes.txt", "pictures/mine.jpg", "scenes/notes.txt",
+                                     "report/", "report/notes.txt", "pictures/mine.jpg", "pictures/mine.png", "scenes/notes.txt",
                                      "scenes/my-notes.parquet", "scenes/scene-0002.parquet"])
 def test_overwrite_refuses_a_folder_holding_what_eval_does_not_write(tmp_path, foreign):
     out = stale_evaluation(tmp_path / "eval")
@@ -213,6 +216,14 @@ def test_overwrite_refuses_a_folder_holding_what_eval_does_not_write(tmp_path, f
     assert str(refused.value) == (f"{out}: not replaced: '{shown}' is not something sianms eval writes; "
                                   "remove it yourself or choose another --out")
     assert {path: path.read_bytes() for path in sorted(out.rglob("*")) if path.is_file()} == before
+
+
+def test_an_evaluation_stopped_before_it_listed_its_pictures_may_have_any_png_replaced(tmp_path):
+    out = stale_evaluation(tmp_path / "eval")
+    (out / "eval.json").write_text(json.dumps({"kind": "sianms-eval", "config": STALE_CONFIG, "complete": False}))
+    (out / "pictures" / "fedcba98.png").write_text("drawn before the run stopped")
+    assert claim_output(out, NEW_CONFIG, overwrite=True) is False
+    assert not (out / "pictures").exists()
 
 
 def test_overwrite_refuses_a_link_even_to_what_eval_writes(tmp_path):
@@ -295,6 +306,18 @@ def test_a_folder_claimed_by_a_run_killed_at_once_is_still_the_evaluations(tmp_p
             claim_output(out, NEW_CONFIG, overwrite=False)
     assert claim_output(out, NEW_CONFIG, overwrite=False) is False
     assert (out / "scenes").is_dir()
+
+
+@pytest.mark.parametrize("edited", ["yes", 1])
+def test_an_eval_json_saying_complete_other_than_true_is_resumed_not_taken_as_finished(tmp_path, edited):
+    out = tmp_path / "eval"
+    out.mkdir()
+    (out / "eval.json").write_text(json.dumps({"kind": "sianms-eval", "config": NEW_CONFIG, "complete": edited}))
+    assert claim_output(out, NEW_CONFIG, overwrite=False) is False
+    assert json.loads((out / "eval.json").read_text())["complete"] is False
+    assert claim_output(out, NEW_CONFIG, overwrite=False) is False
+    (out / "eval.json").write_text(json.dumps({"kind": "sianms-eval", "config": NEW_CONFIG, "complete": True}))
+    assert claim_output(out, NEW_CONFIG, overwrite=False) is True
 
 
 @pytest.mark.parametrize("flag, value, message", [
