@@ -64,6 +64,7 @@ from sianms_cli.training.run import (
     Checkpoint,
     RunFolder,
     cache_inputs,
+    check_epochs,
     check_losses_finite,
     choose_device,
     epoch_generator,
@@ -129,9 +130,10 @@ class FPointNetConfig:
         object.__setattr__(self, "classes", tuple(self.classes))
         if not self.classes or len(set(self.classes)) != len(self.classes):
             raise SianmsError(f"--classes must name distinct classes, got {','.join(self.classes)}")
-        for name in ("num_points", "epochs", "batch_size", "decay_step", "num_object_points"):
+        for name in ("num_points", "batch_size", "decay_step", "num_object_points"):
             if getattr(self, name) < 1:
                 raise SianmsError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}")
+        check_epochs(self.epochs)
         if self.batch_size < 2:
             raise SianmsError("--batch-size must be at least 2 (batch norm)")
         for name in ("num_points", "num_object_points"):

@@ -561,6 +561,7 @@ class RunFolder:
         except (KeyError, TypeError, ValueError, RuntimeError) as error:
             raise DataFormatError(self.checkpoint_path, f"the optimizer state does not fit this model ({error})",
                                   field="optimizer") from None
+        _check_optimizer_shapes(optimizer, self.checkpoint_path)
 
     def save(self, checkpoint: Checkpoint, *, curves: bool = True) -> None:
         """Write the epoch's checkpoint, then metrics.csv and (``curves``) curves.png from its history.
@@ -583,6 +584,26 @@ def _is_left_by_a_start(name: str) -> bool:
     """The folder lock, or the temporary file of a run file whose write a kill cut short: what a run
     stopped as it started leaves, which does not make the folder someone else's."""
     return name == FOLDER_LOCK_NAME or partial_of(name) in RUN_FILES
+
+
+def _check_optimizer_shapes(optimizer: torch.optim.Optimizer, path: Path) -> None:
+    """Name a loaded optimizer state whose per-weight tensors (Adam's moments) are not their weights'
+    shape: torch loads them as they are, and the first step would end in a size-mismatch traceback."""
+    weights = (weight for group in optimizer.param_groups for weight in group["params"])
+    for index, weight in enumerate(weights):
+        for name, value in optimizer.state.get(weight, {}).items():
+            if torch.is_tensor(value) and value.dim() and value.shape != weight.shape:
+                raise DataFormatError(path, f"state {index} '{name}' has shape {tuple(value.shape)}, its weight "
+                                            f"{tuple(weight.shape)} (another config?)", field="optimizer")
+
+
+MAX_EPOCHS = 10_000  # 50 times the original F-PointNets' 201: more is a typo that would run for ever
+
+
+def check_epochs(epochs: int) -> None:
+    """Refuse an --epochs outside [1, :data:`MAX_EPOCHS`]."""
+    if not 1 <= epochs <= MAX_EPOCHS:
+        raise SianmsError(f"--epochs must be in [1, {MAX_EPOCHS:,}], got {epochs}")
 
 
 def check_losses_finite(row: dict[str, Any]) -> None:

@@ -69,9 +69,9 @@ from sianms_cli.models.losses import double_margin_loss, pair_distances, positiv
 from sianms_cli.models.siamese import SiameseEncoder, parameter_count
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.training.precision import MixedPrecision, check_precision, resolve_precision
-from sianms_cli.training.run import Checkpoint, RunFolder, cache_inputs, check_losses_finite, checkpoint_file, \
-    choose_device, epoch_generator, finish_distributed, init_distributed, load_checkpoint, load_state, plain, \
-    row_counts, seed_everything, set_learning_rate, step_decay, sum_over_ranks, writes_outputs
+from sianms_cli.training.run import Checkpoint, RunFolder, cache_inputs, check_epochs, check_losses_finite, \
+    checkpoint_file, choose_device, epoch_generator, finish_distributed, init_distributed, load_checkpoint, \
+    load_state, plain, row_counts, seed_everything, set_learning_rate, step_decay, sum_over_ranks, writes_outputs
 
 KIND = "siamese"
 MAX_WIDTH = 2**16  # a layer width past any sweep (the paper's: 100 to 256): a typo is refused, not allocated
@@ -124,12 +124,12 @@ class SiameseConfig:
             (self.lr > 0 and math.isfinite(self.lr), f"--lr must be positive, got {self.lr}"),
             (0 < self.lr_decay <= 1, f"--lr-decay must be in (0, 1], got {self.lr_decay}"),
             (self.lr_step >= 1, f"--lr-step must be at least 1, got {self.lr_step}"),
-            (self.epochs >= 1, f"--epochs must be at least 1, got {self.epochs}"),
             (self.batch_size >= 1, f"--batch-size must be at least 1, got {self.batch_size}"),
         ]
         for ok, message in checks:
             if not ok:
                 raise SianmsError(message)
+        check_epochs(self.epochs)
         check_seed(self.seed)
         check_precision(self.precision)
         check_stream_count(self.streams)

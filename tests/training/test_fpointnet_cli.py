@@ -79,3 +79,15 @@ def test_a_point_count_past_any_frustum_is_refused_as_a_flag(tmp_path):
     for name in ("num_points", "num_object_points"):
         with pytest.raises(SianmsError, match=f"--{name.replace('_', '-')} must be at most 65,536, got 1000000000"):
             FPointNetConfig(cache=str(tmp_path), **{name: 1_000_000_000})
+
+
+@pytest.mark.parametrize("epochs", [0, 10_001, 10**20])
+def test_an_epoch_count_outside_1_to_10000_is_refused_by_both_trainings(tmp_path, epochs):
+    """--epochs 100000000000000000000 was accepted and trained without end."""
+    from sianms_cli.errors import SianmsError
+    from sianms_cli.training.fpointnet import FPointNetConfig
+    from sianms_cli.training.siamese import SiameseConfig
+
+    for config in (FPointNetConfig, SiameseConfig):
+        with pytest.raises(SianmsError, match=f"^--epochs must be in \\[1, 10,000\\], got {epochs}$"):
+            config(cache=str(tmp_path), epochs=epochs)

@@ -120,6 +120,20 @@ def test_a_resume_whose_optimizer_state_does_not_fit_names_the_field(tmp_path):
             resumed.restore(net, torch.optim.Adam(net.parameters()))
 
 
+def test_a_resume_whose_optimizer_moments_have_another_shape_names_the_field(tmp_path):
+    """torch loads Adam's moments whatever their shape: the first step had ended in a traceback."""
+    net, checkpoint = small_checkpoint()
+    optimizer = checkpoint.optimizer
+    state = {**optimizer["state"], 1: {**optimizer["state"][1], "exp_avg": torch.zeros(5)}}
+    with RunFolder.open(tmp_path / "run", kind="siamese", config=checkpoint.config) as run:
+        run.save(replace(checkpoint, optimizer={**optimizer, "state": state}), curves=False)
+    resumed = RunFolder.open(tmp_path / "run", kind="siamese", config=checkpoint.config, resume=True)
+    with pytest.raises(DataFormatError, match=r"checkpoint.pt: field 'optimizer': state 1 'exp_avg' has shape "
+                                              r"\(5,\), its weight \(2,\) \(another config\?\)$"):
+        with resumed:
+            resumed.restore(net, torch.optim.Adam(net.parameters()))
+
+
 def test_weights_that_do_not_fit_name_the_key(tmp_path):
     _, checkpoint = small_checkpoint()
     with pytest.raises(DataFormatError, match=r"field 'model.weight': shape \(2, 3\), this model has \(4, 3\)"):
