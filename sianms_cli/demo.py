@@ -4,6 +4,7 @@ Each stage is the library call its own command makes, into a folder of its own u
 ``out``::
 
     out/demo.json        what was asked, each stage's state and wall time; "complete" once the report exists
+    out/.demo.lock       held while a demo runs here: a second one is refused until it ends
     out/data/            `sianms synth` (v1.0-mini, or v1.0-trainval for a larger study)
     out/cache-train/     `sianms prepare --split mini_train` (train)
     out/cache-val/       `sianms prepare --split mini_val` (val)
@@ -40,12 +41,13 @@ from pathlib import Path
 from typing import Any, Callable, NamedTuple
 
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_seed, check_workers
-from sianms_cli.io import make_folder, read_json, write_json
+from sianms_cli.io import exclusive_lock, make_folder, read_json, write_json
 from sianms_cli.json_stream import is_finite_number
 from sianms_cli.progress import SILENT, Progress
 
 MARKER = "demo.json"
 KIND = "sianms-demo"
+LOCK = ".demo.lock"  # held for a whole run: two demos into one folder would interleave their stages and record
 
 
 class DemoVersion(NamedTuple):
@@ -238,12 +240,8 @@ def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> dict[s
     keeps the stages before the first one the change affects (:data:`STAGE_FIELDS`), so more
     F-PointNets epochs retrain only F-PointNets, then evaluate and report again.
     """
-    if out.exists() and not out.is_dir():
-        raise OutputExistsError(f"{out} exists and is not a folder; choose another --out")
+    entries = _refuse_foreign_folder(out)
     marker = out / MARKER
-    entries = sorted(out.iterdir()) if out.is_dir() else []
-    if entries and not marker.is_file():
-        raise OutputExistsError(f"{out} is not empty and is not a sianms demo (no {MARKER}); choose another --out")
     if marker.is_file():
         stored = read_json(marker)
         if not isinstance(stored, dict) or stored.get("kind") != KIND:
@@ -267,6 +265,17 @@ def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> dict[s
     record = {"kind": KIND, "config": resolved, "complete": False, "stages": {}}
     write_json(marker, record)
     return record
+
+
+def _refuse_foreign_folder(out: Path) -> list[Path]:
+    """The entries of ``out`` but the lock; refuses a file, and a non-empty folder without a
+    ``demo.json``. Checked before the lock is taken too, so a refused folder gets no lock file."""
+    if out.exists() and not out.is_dir():
+        raise OutputExistsError(f"{out} exists and is not a folder; choose another --out")
+    entries = sorted(entry for entry in out.iterdir() if entry.name != LOCK) if out.is_dir() else []
+    if entries and not (out / MARKER).is_file():
+        raise OutputExistsError(f"{out} is not empty and is not a sianms demo (no {MARKER}); choose another --out")
+    return entries
 
 
 def _replace_stages(out: Path, record: dict[str, Any], stages: list[str]) -> dict[str, Any]:
@@ -361,7 +370,13 @@ def run(config: DemoConfig, out: str | Path, *, overwrite: bool = False, progres
     check_workers(workers)
     log = on_stage or (lambda stage, event, seconds: None)
     out = Path(out)
-    record = claim_output(out, config.resolved(), overwrite)
+    _refuse_foreign_folder(out)
+    with exclusive_lock(out / LOCK, what=str(out)):
+        return _run_stages(config, out, claim_output(out, config.resolved(), overwrite), log, progress, workers)
+
+
+def _run_stages(config: DemoConfig, out: Path, record: dict[str, Any], log: StageLog, progress: Progress,
+                workers: int) -> DemoResult:
     result = DemoResult(out, record)
     for stage in STAGES:
         if _is_done(record, out, stage):

@@ -1,6 +1,7 @@
 """`sianms demo`: the stages end to end on a tiny profile, resume after an interrupt, the folder rules."""
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -14,6 +15,7 @@ import sianms_cli.demo as demo
 from sianms_cli.cli import app
 from sianms_cli.demo import DemoConfig, run
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
+from sianms_cli.io import FolderBusyError, exclusive_lock
 
 runner = CliRunner()
 TINY = replace(demo.QUICK, scene_seconds=1.0, siamese_epochs=1, fpointnet_epochs=1, num_points=64,
@@ -107,6 +109,24 @@ def test_a_folder_that_is_not_a_demo_is_never_touched(tmp_path):
     (tmp_path / "file").write_text("x")
     with pytest.raises(OutputExistsError, match="not a folder"):
         demo.claim_output(tmp_path / "file", DemoConfig().resolved(), overwrite=True)
+
+
+def test_a_demo_folder_in_use_is_refused_and_a_refused_folder_gets_no_lock_file(tmp_path):
+    """Two demos into one folder had run side by side, each rewriting the other's stages and demo.json."""
+    out = tmp_path / "demo"
+    with exclusive_lock(out / demo.LOCK, what=str(out)):
+        with pytest.raises(FolderBusyError) as busy:
+            run(DemoConfig(quick=True), out)
+    assert str(busy.value) == f"{out} is in use by another sianms process (pid {os.getpid()})"
+    assert sorted(path.name for path in out.iterdir()) == [demo.LOCK]
+    record = demo.claim_output(out, DemoConfig().resolved(), overwrite=False)  # the lock alone is no foreign file
+    assert record["complete"] is False
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "keep.txt").write_text("x")
+    with pytest.raises(OutputExistsError, match="not a sianms demo"):
+        run(DemoConfig(quick=True), mine)
+    assert sorted(path.name for path in mine.iterdir()) == ["keep.txt"]
 
 
 @pytest.mark.parametrize(("stages", "message"), [
@@ -227,5 +247,5 @@ def test_overwrite_deletes_no_file_in_a_stage_folder_that_its_command_did_not_wr
     assert record["replacing"] == list(demo.STAGES)
     finished = demo.claim_output(out, other, overwrite=False)  # the rerun, as typed: it finishes the deletion
     assert finished == {key: value for key, value in record.items() if key != "replacing"}
-    assert sorted(p.name for p in out.iterdir()) == ["demo.json"]
+    assert sorted(p.name for p in out.iterdir()) == [".demo.lock", "demo.json"]  # the lock: the demo ran here
     assert "replacing" not in json.loads((out / "demo.json").read_text())

@@ -37,9 +37,10 @@ def info_cli(
     """
     from sianms_cli.io import check_writable_output
     from sianms_cli.reporting.contact_sheet import write_contact_sheet
-    from sianms_cli.reporting.dataset_summary import InfoConfig, format_summary, run
+    from sianms_cli.reporting.dataset_summary import InfoConfig, check_outside_dataroot, format_summary, run
 
     if contact_sheet is not None:
+        check_outside_dataroot(contact_sheet, dataroot, "--contact-sheet")
         if out is not None and contact_sheet.resolve() == Path(out).resolve():
             raise SianmsError(f"--contact-sheet: {contact_sheet} is also --out; give each its own file")
         check_writable_output(contact_sheet, overwrite=overwrite)

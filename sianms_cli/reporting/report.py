@@ -150,7 +150,10 @@ class ReportConfig:
             if not str(self.baseline).strip():
                 raise SianmsError("--baseline: must not be empty")
             object.__setattr__(self, "baseline", str(self.baseline))
+        given = [flag for flag, value in (("--max-drop", self.max_drop), ("--force", self.force)) if value]
         object.__setattr__(self, "max_drop", MappingProxyType(parse_allowances(self.max_drop)))
+        if given and self.baseline is None:
+            raise SianmsError(f"{given[0]}: applies to a comparison, and there is none without --baseline")
 
 
 @dataclass(frozen=True)

@@ -98,6 +98,18 @@ def test_info_writes_its_figures_to_out_once(synthetic_dataroot, tmp_path):
     assert (again.exit_code, again.output) == (2, f"error: {out} exists; pass --overwrite to replace it\n")
 
 
+def test_info_never_writes_into_the_dataroot(synthetic_dataroot):
+    """`info --out D/v1.0-mini/sample.json --overwrite` replaced the dataset's own sample table."""
+    dataroot = synthetic_dataroot()
+    table = dataroot / "v1.0-mini" / "sample.json"
+    before = table.read_bytes()
+    for flag, path in (("--out", table), ("--contact-sheet", dataroot / "samples" / "sheet.png")):
+        result = runner.invoke(app, ["info", "--dataroot", str(dataroot), "--quiet", "--overwrite", flag, str(path)])
+        assert (result.exit_code, result.output) == (2, f"error: {flag}: {path} is inside the dataroot {dataroot}, "
+                                                        "which info only reads; write it elsewhere\n")
+    assert table.read_bytes() == before and not (dataroot / "samples" / "sheet.png").exists()
+
+
 def test_info_max_sweeps(synthetic_dataroot):
     dataroot = str(synthetic_dataroot())
     none = runner.invoke(app, ["info", "--dataroot", dataroot, "--quiet", "--max-sweeps", "0"])

@@ -235,6 +235,15 @@ def test_allowances_start_from_the_defaults():
         ReportConfig(eval=" ")
 
 
+@pytest.mark.parametrize("flags", [{"max_drop": "ap=1"}, {"force": True}, {"max_drop": "ap=1", "force": True}])
+def test_allowances_or_force_without_a_baseline_are_refused(flags):
+    """`report E --max-drop ap=1` was accepted and the allowance silently ignored: there is no gate."""
+    flag = "--max-drop" if "max_drop" in flags else "--force"
+    with pytest.raises(SianmsError, match=f"^{flag}: applies to a comparison, and there is none without --baseline$"):
+        ReportConfig(eval="e", **flags)
+    assert ReportConfig(eval="e", baseline="b", **flags).baseline == "b"
+
+
 def test_an_existing_folder_is_replaced_only_when_it_is_a_report_and_asked(tmp_path):
     evaluation = make_eval(tmp_path / "eval", details=True)  # with the curves: every file a report writes
     first = run(ReportConfig(eval=str(evaluation)))
