@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import atexit
 import csv
+import gc
 import hashlib
 import io
 import json
@@ -115,10 +116,24 @@ def init_distributed(device: torch.device) -> tuple[int, int, torch.device]:
         torch.cuda.set_device(device)
     if not dist.is_initialized():
         dist.init_process_group(backend="nccl" if device.type == "cuda" else "gloo")
-        # Left to interpreter shutdown, the group's threads are destroyed while still joinable
-        # and a rank can abort ("terminate called without an active exception").
-        atexit.register(dist.destroy_process_group)
+        atexit.register(leave_process_group)
     return dist.get_rank(), dist.get_world_size(), device
+
+
+def leave_process_group() -> None:
+    """Free what still holds the process group, then destroy it, while the interpreter is whole (at exit).
+
+    A DistributedDataParallel wrapper sits in a reference cycle, so it and the group it holds
+    outlive their training until the cyclic collector runs. Left to interpreter shutdown, a gloo
+    worker thread still finishing a work then needs the GIL to drop the work's Python state, and
+    the rank aborts ("terminate called without an active exception", seen under gdb). A minimal
+    two-rank script that trains twice and exits aborted in 3 of 45 runs with the group destroyed
+    alone and in 0 of 90 with the collector run first.
+    """
+    import torch.distributed as dist
+
+    gc.collect()
+    dist.destroy_process_group()
 
 
 def writes_outputs() -> bool:

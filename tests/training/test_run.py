@@ -352,3 +352,30 @@ def test_an_epoch_ending_on_a_non_finite_loss_stops_the_training_in_one_line():
             check_losses_finite({"epoch": 3, "lr": 1000.0, "train_total": value, "train_mask": 0.1})
         assert str(stopped.value) == (f"training diverged in epoch 3: train_total is {value} at learning rate 1000; "
                                       "start afresh (--overwrite) with a lower --lr")
+
+
+def test_leaving_the_process_group_frees_the_ddp_wrappers_that_hold_it_first(tmp_path, monkeypatch):
+    """A DDP wrapper outlives its training in a reference cycle; destroyed at interpreter shutdown,
+    the group's gloo threads aborted a rank now and then (a flaky two-rank sweep test)."""
+    import gc
+    import weakref
+
+    import torch.distributed as dist
+
+    from sianms_cli.training.run import leave_process_group
+
+    dist.init_process_group("gloo", init_method=f"file://{tmp_path / 'store'}", rank=0, world_size=1)
+    destroy = dist.destroy_process_group
+    seen = []
+    monkeypatch.setattr(dist, "destroy_process_group", lambda: (seen.append(alive() is None), destroy()))
+    gc.disable()  # no automatic collection in between: what is left is what shutdown would meet
+    try:
+        wrapper = torch.nn.parallel.DistributedDataParallel(torch.nn.Linear(3, 2))
+        wrapper(torch.ones(4, 3)).sum().backward()
+        alive = weakref.ref(wrapper)
+        del wrapper
+        assert alive() is not None, "the wrapper is in a cycle: only the collector frees it"
+        leave_process_group()
+    finally:
+        gc.enable()
+    assert seen == [True] and not dist.is_initialized()
