@@ -123,8 +123,8 @@ def init_distributed(device: torch.device) -> tuple[int, int, torch.device]:
 def leave_process_group() -> None:
     """Free what still holds the process group, then destroy it, while the interpreter is whole (at exit).
 
-    A DistributedDataParallel wrapper sits in a reference cycle, so it and the group it holds
-    outlive their training until the cyclic collector runs. Left to interpreter shutdown, a gloo
+    A DistributedDataParallel wrapper can sit in a reference cycle (it did in a fresh process), so
+    it and the group it holds outlive their training until the cyclic collector runs. Left to interpreter shutdown, a gloo
     worker thread still finishing a work then needs the GIL to drop the work's Python state, and
     the rank aborts ("terminate called without an active exception", seen under gdb). A minimal
     two-rank script that trains twice and exits aborted in 3 of 45 runs with the group destroyed
@@ -570,6 +570,9 @@ class RunFolder:
         """Load the resumed checkpoint's weights into ``model`` and its state into ``optimizer``;
         what does not fit names the checkpoint and the field."""
         assert self.resumed is not None, "restore() is for a resumed run"
+        if len(self.resumed.history) != self.resumed.epoch:  # a resume would go on from an epoch it has no row of
+            raise DataFormatError(self.checkpoint_path, f"{self.resumed.epoch} epochs done, but the history holds "
+                                                        f"{len(self.resumed.history)} rows", field="epoch")
         load_state(model, self.resumed.model, self.checkpoint_path)
         try:
             optimizer.load_state_dict(self.resumed.optimizer)

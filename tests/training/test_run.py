@@ -23,7 +23,8 @@ def small_checkpoint(kind="siamese", epoch=2):
     optimizer.step()
     return net, Checkpoint(kind=kind, config={"dim": 2, "widths": [1, 2], "cache": None}, epoch=epoch,
                            model=net.state_dict(), optimizer=optimizer.state_dict(),
-                           history=[{"epoch": 1, "loss": 0.5}], extra={"dis_thr": 1.25})
+                           history=[{"epoch": done, "loss": 0.5} for done in range(1, epoch + 1)],
+                           extra={"dis_thr": 1.25})
 
 
 
@@ -116,6 +117,18 @@ def test_a_resume_whose_optimizer_state_does_not_fit_names_the_field(tmp_path):
         run.save(replace(checkpoint, optimizer={"x": 1}), curves=False)
     resumed = RunFolder.open(tmp_path / "run", kind="siamese", config=checkpoint.config, resume=True)
     with pytest.raises(DataFormatError, match="checkpoint.pt: field 'optimizer': the optimizer state does not fit"):
+        with resumed:
+            resumed.restore(net, torch.optim.Adam(net.parameters()))
+
+
+def test_a_resume_from_an_epoch_beyond_the_history_names_the_field(tmp_path):
+    """An edited epoch of 5 over 2 rows of history had been resumed at epoch 6."""
+    net, checkpoint = small_checkpoint()
+    with RunFolder.open(tmp_path / "run", kind="siamese", config=checkpoint.config) as run:
+        run.save(replace(checkpoint, epoch=5), curves=False)
+    resumed = RunFolder.open(tmp_path / "run", kind="siamese", config=checkpoint.config, resume=True)
+    with pytest.raises(DataFormatError, match=r"checkpoint.pt: field 'epoch': 5 epochs done, but the history holds "
+                                              r"2 rows$"):
         with resumed:
             resumed.restore(net, torch.optim.Adam(net.parameters()))
 
@@ -355,7 +368,7 @@ def test_an_epoch_ending_on_a_non_finite_loss_stops_the_training_in_one_line():
 
 
 def test_leaving_the_process_group_frees_the_ddp_wrappers_that_hold_it_first(tmp_path, monkeypatch):
-    """A DDP wrapper outlives its training in a reference cycle; destroyed at interpreter shutdown,
+    """A DDP wrapper outlived its training in a reference cycle; destroyed at interpreter shutdown,
     the group's gloo threads aborted a rank now and then (a flaky two-rank sweep test)."""
     import gc
     import weakref
@@ -368,13 +381,17 @@ def test_leaving_the_process_group_frees_the_ddp_wrappers_that_hold_it_first(tmp
     destroy = dist.destroy_process_group
     seen = []
     monkeypatch.setattr(dist, "destroy_process_group", lambda: (seen.append(alive() is None), destroy()))
+    class Training:  # a wrapper in a reference cycle, as DDP's own often is
+        pass
+
     gc.disable()  # no automatic collection in between: what is left is what shutdown would meet
     try:
-        wrapper = torch.nn.parallel.DistributedDataParallel(torch.nn.Linear(3, 2))
-        wrapper(torch.ones(4, 3)).sum().backward()
-        alive = weakref.ref(wrapper)
-        del wrapper
-        assert alive() is not None, "the wrapper is in a cycle: only the collector frees it"
+        training = Training()
+        training.itself, training.wrapper = training, torch.nn.parallel.DistributedDataParallel(torch.nn.Linear(3, 2))
+        training.wrapper(torch.ones(4, 3)).sum().backward()
+        alive = weakref.ref(training.wrapper)
+        del training
+        assert alive() is not None, "only the collector frees a cycle"
         leave_process_group()
     finally:
         gc.enable()
