@@ -16,6 +16,7 @@ from sianms_cli.nuscenes.tables import check_version_name
 
 MAX_SAMPLING_RATIO = 16  # samples per bin side: detectron2 uses 0 (adaptive) or 2; the cost grows with its square
 MAX_ROI_SIZE = 64  # pixels a side: ROI Align pools 7 or 14 in practice; beyond this a feature row passes 4 MB
+MAX_SWEEPS = 100  # 5 s of 20 Hz LiDAR (detectors stack about 10, 0.5 s): more is a typo that exhausts memory
 
 
 @dataclass(frozen=True)
@@ -50,8 +51,8 @@ class PrepareConfig:
         if not 1 <= self.roi_size <= MAX_ROI_SIZE:
             raise SianmsError(f"--roi-size must be between 1 and {MAX_ROI_SIZE}, got {self.roi_size}")
         check_seed(self.seed)
-        if self.sweeps < 0:
-            raise SianmsError(f"--sweeps must be >= 0, got {self.sweeps}")
+        if not 0 <= self.sweeps <= MAX_SWEEPS:
+            raise SianmsError(f"--sweeps must be in [0, {MAX_SWEEPS}], got {self.sweeps}")
         if not 0 < self.iou_threshold <= 1:
             raise SianmsError(f"--iou-threshold must be in (0, 1], got {self.iou_threshold}")
         if not (math.isfinite(self.min_depth) and self.min_depth >= 0):

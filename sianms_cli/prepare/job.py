@@ -17,6 +17,7 @@ was interrupted and resumed.
 
 from __future__ import annotations
 
+import re
 from contextlib import closing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -79,7 +80,17 @@ def split_scenes(db: NuScenesDB, split: str) -> list[tuple[str, str]]:
     chosen = [(tok, name if unique else tok) for tok, name in zip(scenes.tokens.tolist(), all_names) if name in names]
     if not chosen:
         raise SianmsError(f"split '{split}' has no scene in {db.table_root}")
+    for token, shard in chosen:
+        if not SHARD_NAME.fullmatch(shard):
+            raise DataFormatError(db.table_root / "scene.json", f"'{shard}' cannot name the scene's files (letters, "
+                                  "digits, '.', '_' and '-', starting with a letter or digit)", token=token,
+                                  field="name" if unique else "token")
     return chosen
+
+
+SHARD_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,199}")
+"""A scene's name (or token) names its files in a cache and an evaluation: one plain path component,
+so '../x' cannot write or delete outside the folder and '*' cannot match other scenes' files."""
 
 
 # ------------------------------------------------------------------------------ inputs

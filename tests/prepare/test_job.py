@@ -260,6 +260,8 @@ def test_sweeps_need_lidar_sweeps_between_key_frames(synthetic_dataroot, tmp_pat
     (dict(min_depth=-1.0), "--min-depth must be a finite number >= 0"),
     (dict(sampling_ratio=200), r"--sampling-ratio must be at most 16 \(<= 0: adaptive\), got 200"),
     (dict(version="../escape"), "--version"),
+    (dict(sweeps=10**9), r"^--sweeps must be in \[0, 100\], got 1000000000$"),  # had run out of memory
+    (dict(sweeps=-1), r"^--sweeps must be in \[0, 100\], got -1$"),
 ])
 def test_config_validation(config, fields, message):
     with pytest.raises(SianmsError, match=message):
@@ -302,3 +304,24 @@ def test_cli_prints_what_it_did_as_json(config, finished, tmp_path):
     assert printed["written"] == [] and printed["complete"] and printed["busy"] == []
     assert sorted(printed["already_finished"]) == sorted(p.stem for p in (finished / "_shards").glob("*.json"))
     assert os.path.samefile(printed["out"], out)
+
+
+
+@pytest.mark.parametrize("name", ["../outside", "a/b", "*", ".hidden", "-rf"])
+def test_a_scene_name_that_is_no_plain_file_name_is_refused_before_anything_is_written(synthetic_dataroot, tmp_path,
+                                                                                         name):
+    """Scene names name a cache's and an evaluation's files: '../outside' had written and deleted
+    beside the cache, '*' had matched other scenes' temporaries."""
+    dataroot = shutil.copytree(synthetic_dataroot(sensors="none"), tmp_path / "data")
+    tables = dataroot / "v1.0-mini"
+    scenes = json.loads((tables / "scene.json").read_text())
+    scenes[0]["name"] = name
+    (tables / "scene.json").write_text(json.dumps(scenes))
+    (tables / "splits.json").write_text(json.dumps({"odd": [name]}))
+    (tmp_path / "outside.parquet").write_text("mine")
+    result = CliRunner().invoke(app, ["prepare", "--dataroot", str(dataroot), "--split", "odd", "--out",
+                                      str(tmp_path / "cache" / "run"), "--quiet"])
+    assert result.exit_code == 2, result.output
+    assert result.output.startswith(f"error: {tables / 'scene.json'}: record {scenes[0]['token']}: field 'name': ")
+    assert "cannot name the scene's files" in result.output and result.output.count("\n") == 1
+    assert not (tmp_path / "cache").exists() and (tmp_path / "outside.parquet").read_text() == "mine"
