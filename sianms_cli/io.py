@@ -94,6 +94,23 @@ def partial_of(name: str) -> str | None:
     return match.group(1) if match else None
 
 
+def check_outside_dataroot(path: str | Path, dataroot: str | Path, flag: str, command: str) -> None:
+    """Refuse a ``flag`` file inside the dataroot of a ``command`` that only reads the dataset
+    (with --overwrite, an --out naming one of its tables would replace that table)."""
+    if Path(path).resolve().is_relative_to(Path(dataroot).resolve()):
+        raise SianmsError(f"{flag}: {path} is inside the dataroot {dataroot}, which {command} only reads; "
+                          "write it elsewhere")
+
+
+def expand_home(path: Path) -> Path:
+    """``path`` with a leading ``~`` or ``~user`` made the home folder's, as the shell does for
+    ``--out ~/x`` but not for ``--out=~/x`` nor after ``file:``: a folder named ``~`` is never wanted."""
+    try:
+        return path.expanduser()
+    except RuntimeError:  # ~nobody-here/x
+        raise SianmsError(f"{path}: no home folder is known for {path.parts[0]}") from None
+
+
 def make_folder(path: str | Path) -> Path:
     """Create ``path`` and its parents as the umask allows; an existing folder is fine."""
     path = Path(path)
@@ -204,11 +221,13 @@ def write_texts_together(texts: dict[Path, str], *, overwrite: bool = False) -> 
     """Write each ``{path: text}`` (UTF-8) under its temporary name, then rename them all into place.
 
     A failure (a full disk, a file where a folder must be) leaves none of the paths written and
-    none replaced: the temporary files are removed, and a file already renamed when a later
-    rename fails is deleted. Refuses a folder, and an existing file unless ``overwrite``.
+    none replaced: the temporary files are removed, a file already renamed when a later rename
+    fails is deleted, and the file it replaced, renamed aside first, is put back. Refuses a
+    folder, and an existing file unless ``overwrite``.
     """
     files: list[AtomicFile] = []
     committed: list[Path] = []
+    set_aside: dict[Path, Path] = {}  # destination: its earlier file, under a temporary name
     try:
         for path, text in texts.items():
             files.append(AtomicFile(check_writable_output(path, overwrite=overwrite)))
@@ -216,13 +235,22 @@ def write_texts_together(texts: dict[Path, str], *, overwrite: bool = False) -> 
                 files[-1].stream.write(text.encode("utf-8"))
                 files[-1].stream.flush()  # a full disk fails here, before anything is renamed
         for file in files:
+            if file.path.exists():
+                set_aside[file.path] = partial_name(file.path)
+                with os_errors_as_output_errors(file.path):
+                    os.replace(file.path, set_aside[file.path])
             committed.append(file.commit())
     except BaseException:
         for file in files:
             file.discard()
         for path in committed:
             path.unlink(missing_ok=True)
+        for path, aside in set_aside.items():
+            if aside.exists():
+                os.replace(aside, path)
         raise
+    for aside in set_aside.values():
+        aside.unlink(missing_ok=True)
 
 
 def check_writable_output(path: str | Path, *, overwrite: bool) -> Path:

@@ -25,7 +25,7 @@ import mmap
 import re
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any, Callable, Iterable, Iterator, Sequence
 
 import orjson
 
@@ -45,6 +45,16 @@ def json_kind(value: Any) -> str:
 def is_number(value: Any) -> bool:
     """Whether ``value`` is an int or a float, and not a bool (JSON ``true`` is no number)."""
     return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def fits_float(values: Sequence[Any]) -> bool:
+    """Whether every number of ``values`` converts to a float: an integer past float's range
+    (JSON allows any length of digits) raises OverflowError in numpy and in ``float``."""
+    try:
+        [float(value) for value in values]
+    except OverflowError:
+        return False
+    return True
 
 
 def is_finite_number(value: Any) -> bool:

@@ -294,3 +294,28 @@ def test_an_interrupt_as_the_temporary_file_is_created_leaves_no_file(tmp_path, 
     with pytest.raises(KeyboardInterrupt):
         io.AtomicFile(tmp_path / "manifest.json", text=text)
     assert list(tmp_path.iterdir()) == [] and not [path for path in io._OPEN_TEMPORARIES if path.parent == tmp_path]
+
+
+def test_texts_written_together_put_back_the_files_they_replaced_when_a_rename_fails(tmp_path, monkeypatch):
+    """`metrics --out r.json --details d.json --overwrite` whose second rename failed had left
+    neither the old r.json nor the new one."""
+    report, details = tmp_path / "r.json", tmp_path / "d.json"
+    report.write_text("old report")
+    details.write_text("old details")
+    real_replace = os.replace
+    failures = []
+
+    def second_rename_fails(source, destination):
+        if Path(destination) == details and Path(source).name.startswith(".d.json.") and not failures:
+            failures.append(source)
+            raise OSError(errno.EIO, os.strerror(errno.EIO))
+        real_replace(source, destination)
+
+    monkeypatch.setattr(io.os, "replace", second_rename_fails)
+    with pytest.raises(io.OutputError, match="d.json"):
+        io.write_texts_together({report: "new report", details: "new details"}, overwrite=True)
+    assert failures and (report.read_text(), details.read_text()) == ("old report", "old details")
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["d.json", "r.json"]
+    io.write_texts_together({report: "new report", details: "new details"}, overwrite=True)
+    assert (report.read_text(), details.read_text()) == ("new report", "new details")
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["d.json", "r.json"]

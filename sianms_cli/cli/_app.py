@@ -13,7 +13,7 @@ import typer
 
 from sianms_cli import __version__
 from sianms_cli.errors import SianmsError
-from sianms_cli.io import describe_os_error
+from sianms_cli.io import describe_os_error, expand_home
 from sianms_cli.processes import Terminated, signal_received
 
 INTERRUPTED = "finished outputs are kept, a rerun resumes or starts afresh"
@@ -150,16 +150,10 @@ def describe_out_of_memory(error: BaseException) -> str:
 
 
 def home_expanded(value: object) -> object:
-    """A path (or list of paths) with a leading ``~`` or ``~user`` made the home folder's, as the
-    shell does for ``--out ~/x`` but not for ``--out=~/x``: a folder named ``~`` is never wanted."""
+    """A path (or list of paths) with a leading ``~`` made the home folder's (:func:`~sianms_cli.io.expand_home`)."""
     if isinstance(value, list) and all(isinstance(item, Path) for item in value):
         return [home_expanded(item) for item in value]
-    if not isinstance(value, Path):
-        return value
-    try:
-        return value.expanduser()
-    except RuntimeError:  # ~nobody-here/x
-        raise SianmsError(f"{value}: no home folder is known for {value.parts[0]}") from None
+    return expand_home(value) if isinstance(value, Path) else value
 
 
 def is_peer_lost(error: BaseException) -> bool:

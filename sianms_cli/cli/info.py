@@ -35,12 +35,12 @@ def info_cli(
     and heading-to-axis histograms; and how much of the ego's driving goes straight. Each
     figure prints beside its nuScenes value and source.
     """
-    from sianms_cli.io import check_writable_output
+    from sianms_cli.io import check_outside_dataroot, check_writable_output
     from sianms_cli.reporting.contact_sheet import write_contact_sheet
-    from sianms_cli.reporting.dataset_summary import InfoConfig, check_outside_dataroot, format_summary, run
+    from sianms_cli.reporting.dataset_summary import InfoConfig, format_summary, run
 
     if contact_sheet is not None:
-        check_outside_dataroot(contact_sheet, dataroot, "--contact-sheet")
+        check_outside_dataroot(contact_sheet, dataroot, "--contact-sheet", "info")
         if out is not None and contact_sheet.resolve() == Path(out).resolve():
             raise SianmsError(f"--contact-sheet: {contact_sheet} is also --out; give each its own file")
         check_writable_output(contact_sheet, overwrite=overwrite)

@@ -181,7 +181,8 @@ class ResNet50C4(nn.Module):
             raise DataFormatError(path, f"not a torch checkpoint loadable with weights_only=True ({error})") from None
         if isinstance(state, dict) and isinstance(state.get("model"), dict):
             state = state["model"]
-        if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
+        if (not isinstance(state, dict) or not all(isinstance(k, str) for k in state)
+                or not all(isinstance(v, torch.Tensor) for v in state.values())):
             raise DataFormatError(path, "expected a flat state dict (name -> tensor)")
         if any(key.startswith(DETECTION_PREFIX) for key in state):
             state = {key[len(DETECTION_PREFIX):]: value for key, value in state.items() if key.startswith(DETECTION_PREFIX)}
@@ -195,6 +196,8 @@ class ResNet50C4(nn.Module):
         for key, value in expected.items():
             if tuple(state[key].shape) != tuple(value.shape):
                 raise DataFormatError(path, f"shape {tuple(state[key].shape)}, expected {tuple(value.shape)}", field=key)
+            if state[key].is_floating_point() and not torch.isfinite(state[key]).all():
+                raise DataFormatError(path, "holds a NaN or an infinity: every ROI feature would be one", field=key)
         model.load_state_dict({key: state[key].float() for key in expected})
         return model
 

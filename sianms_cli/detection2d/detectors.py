@@ -23,6 +23,7 @@ from sianms_cli.detection2d.detections import Detections2D, GroundTruth2D
 from sianms_cli.detection2d.external import ExternalDetections
 from sianms_cli.detection2d.simulated import SimulatedDetector, SimulatedDetectorConfig
 from sianms_cli.errors import SianmsError
+from sianms_cli.io import expand_home
 from sianms_cli.nuscenes.loader import NuScenesDB
 
 SIMULATED = "simulated"
@@ -57,7 +58,7 @@ def parse_detector(text: str) -> DetectorSpec:
     if text == SIMULATED:
         return DetectorSpec()
     if text.startswith(FILE_PREFIX) and len(text) > len(FILE_PREFIX):
-        return DetectorSpec(Path(text[len(FILE_PREFIX):]))
+        return DetectorSpec(expand_home(Path(text[len(FILE_PREFIX):])))  # the shell leaves a ~ after file: as it is
     raise SianmsError(f"unknown detector '{text}'; --detector takes '{SIMULATED}' or '{FILE_PREFIX}PATH' "
                       "(a .parquet or .json file of 2D detections)")
 

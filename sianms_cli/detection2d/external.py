@@ -25,6 +25,7 @@ import pyarrow.parquet as pq
 from sianms_cli.detection2d.detections import Detections2D, GroundTruth2D
 from sianms_cli.errors import DataFormatError
 from sianms_cli.io import read_json
+from sianms_cli.json_stream import fits_float, is_number
 from sianms_cli.nuscenes.classes import DETECTION_CLASSES
 from sianms_cli.nuscenes.loader import NuScenesDB
 
@@ -124,9 +125,8 @@ def _read_columns(path: Path) -> dict[str, np.ndarray]:
                 raise DataFormatError(path, f"row {first}: expected a string", field=name)
             out[name] = np.array(values, dtype=str) if values else np.zeros(0, dtype="<U1")
         else:
-            if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
-                first = next(i for i, v in enumerate(values)
-                             if not isinstance(v, (int, float)) or isinstance(v, bool))
-                raise DataFormatError(path, f"row {first}: expected a number", field=name)
+            if not (all(is_number(v) for v in values) and fits_float(values)):
+                first = next(i for i, v in enumerate(values) if not (is_number(v) and fits_float([v])))
+                raise DataFormatError(path, f"row {first}: expected a number a float can hold", field=name)
             out[name] = np.array(values, dtype=np.float64)
     return out

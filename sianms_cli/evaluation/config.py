@@ -19,7 +19,6 @@ the mean TP errors and NDS are then taken over those classes only.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
@@ -29,8 +28,8 @@ import numpy as np
 from sianms_cli.errors import DataFormatError, SianmsError
 from sianms_cli.evaluation.boxes import DETECTION_NAMES, LABEL
 from sianms_cli.nuscenes.classes import PAPER_CLASSES
-from sianms_cli.io import read_json
-from sianms_cli.json_stream import is_number, json_kind
+from sianms_cli.io import expand_home, read_json
+from sianms_cli.json_stream import is_finite_number, is_number, json_kind
 
 DETECTION_CVPR_2019: dict[str, Any] = {
     "class_range": {
@@ -139,7 +138,7 @@ class DetectionConfig:
             if cls_name not in LABEL:
                 fail(f"class_range.{cls_name}",
                      f"unknown detection class; known: {', '.join(DETECTION_NAMES)}")
-            if not is_number(value) or not math.isfinite(value) or value <= 0:
+            if not is_finite_number(value) or value <= 0:
                 fail(f"class_range.{cls_name}", f"must be a positive number of metres, got {value!r}")
 
         if merged["dist_fcn"] != CENTER_DISTANCE:
@@ -147,14 +146,14 @@ class DetectionConfig:
 
         dist_ths = merged["dist_ths"]
         if (not isinstance(dist_ths, list) or not dist_ths
-                or not all(is_number(t) and math.isfinite(t) and t > 0 for t in dist_ths)):
+                or not all(is_finite_number(t) and t > 0 for t in dist_ths)):
             fail("dist_ths", f"must be a non-empty list of positive numbers of metres, got {dist_ths!r}")
         if len(set(dist_ths)) != len(dist_ths):
             fail("dist_ths", f"thresholds must be distinct, got {dist_ths!r}")
         if not is_number(merged["dist_th_tp"]) or merged["dist_th_tp"] not in dist_ths:
             fail("dist_th_tp", f"must be one of dist_ths {dist_ths!r}, got {merged['dist_th_tp']!r}")
         min_recall, min_precision = merged["min_recall"], merged["min_precision"]
-        if not is_number(min_recall) or not 0 <= min_recall or round(100 * min_recall) > 99:
+        if not is_finite_number(min_recall) or not 0 <= min_recall <= 1 or round(100 * min_recall) > 99:
             # AP averages the precision at the 1 %-recall points above it: past 0.99 none is left
             fail("min_recall", f"must be a number in [0, 0.99], got {min_recall!r}")
         if not is_number(min_precision) or not 0 <= min_precision < 1:
@@ -163,7 +162,7 @@ class DetectionConfig:
         if not isinstance(max_boxes, int) or isinstance(max_boxes, bool) or max_boxes < 1:
             fail("max_boxes_per_sample", f"must be a positive integer, got {max_boxes!r}")
         weight = merged["mean_ap_weight"]
-        if not is_number(weight) or not math.isfinite(weight) or weight < 0:
+        if not is_finite_number(weight) or weight < 0:
             fail("mean_ap_weight", f"must be a non-negative number, got {weight!r}")
 
         return cls(
@@ -191,7 +190,7 @@ def load_config(spec: str | Path | DetectionConfig = "detection_cvpr_2019") -> D
     text = str(spec)
     if text in PRESETS:
         return DetectionConfig.from_dict(PRESETS[text], source=text, name=text)
-    path = Path(text)
+    path = expand_home(Path(text))  # --config=~/c.json reaches here with its ~
     if not path.is_file():
         raise SianmsError(
             f"config '{text}' is neither a preset ({', '.join(PRESETS)}) nor an existing JSON file"

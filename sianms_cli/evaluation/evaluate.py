@@ -60,7 +60,8 @@ from sianms_cli.evaluation.results import (
     read_results,
     validate_results,
 )
-from sianms_cli.io import check_writable_output, read_json, write_text, write_texts_together
+from sianms_cli.io import (check_outside_dataroot, check_writable_output, expand_home, read_json, write_text,
+                           write_texts_together)
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.tables import check_version_name
 from sianms_cli.nuscenes.rigs import sample_rigs
@@ -101,6 +102,8 @@ class MetricsConfig:
                 raise SianmsError(f"{flag}: must not be empty")
             object.__setattr__(self, name, value)
         check_version_name(self.version)
+        if self.detection_config not in PRESETS:  # a file: --config=~/c.json keeps its ~ past the shell
+            object.__setattr__(self, "detection_config", str(expand_home(Path(self.detection_config))))
         if self.detection_config not in PRESETS and not Path(self.detection_config).is_file():
             raise SianmsError(f"--config: '{self.detection_config}' is neither a preset "
                               f"({', '.join(PRESETS)}) nor an existing JSON file")
@@ -140,6 +143,9 @@ def run(config: MetricsConfig, out: str | Path | None = None, *, details: str | 
     for flag, path in outputs.items():
         if Path(path).resolve() == Path(config.results).resolve():
             raise SianmsError(f"{flag}: {path} is the results file; write it elsewhere")
+        if Path(path).resolve() == Path(config.detection_config).resolve():
+            raise SianmsError(f"{flag}: {path} is the --config file; write it elsewhere")
+        check_outside_dataroot(path, config.dataroot, flag, "metrics")
         check_writable_output(path, overwrite=overwrite)
     if len(outputs) == 2 and Path(out).resolve() == Path(details).resolve():
         raise SianmsError(f"--details: {details} is also --out; give each its own file")

@@ -39,6 +39,7 @@ more are first read by the compiled scanner of :mod:`~sianms_cli.evaluation.resu
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from itertools import chain, repeat
 from operator import itemgetter
@@ -58,7 +59,7 @@ from sianms_cli.evaluation.boxes import (
     empty_boxes,
 )
 from sianms_cli.io import atomic_file, check_writable_output
-from sianms_cli.json_stream import JsonStream, collector_paused, is_number, json_kind, types_within
+from sianms_cli.json_stream import JsonStream, collector_paused, fits_float, is_number, json_kind, types_within
 
 QUATERNION_TOLERANCE = 1e-2
 """A rotation is accepted when | ||q|| - 1 | <= this (it is normalised before use)."""
@@ -329,6 +330,21 @@ def _check_meta(path: Path, meta: Any) -> None:
     for flag in META_FLAGS:
         if flag in meta and not isinstance(meta[flag], bool):
             raise DataFormatError(path, f"must be true or false, got {meta[flag]!r}", field=f"meta.{flag}")
+    field = _non_finite_field(meta, "meta")
+    if field is not None:  # it is copied into the report, which strict JSON cannot hold it in
+        raise DataFormatError(path, "not a finite number (NaN and Infinity are not JSON)", field=field)
+
+
+def _non_finite_field(value: Any, field: str) -> str | None:
+    """The dotted field of the first NaN or infinity in ``value`` (objects and lists, depth first), or None."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return field
+    items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else ()
+    for key, item in items:
+        found = _non_finite_field(item, f"{field}.{key}" if isinstance(key, str) else f"{field}[{key}]")
+        if found is not None:
+            return found
+    return None
 
 
 class _Batch:
@@ -453,10 +469,10 @@ def _box_problem(box: Any, token: str) -> tuple[str, str] | None:
     for name, length in _VECTORS.items():
         value = box[name]
         if (not isinstance(value, list) or len(value) != length
-                or not all(is_number(v) for v in value) or not _fits_float(value)):
+                or not all(is_number(v) for v in value) or not fits_float(value)):
             return name, f"must be a list of {length} numbers, got {value!r}"
     score = box["detection_score"]
-    if not is_number(score) or not _fits_float([score]):
+    if not is_number(score) or not fits_float([score]):
         return "detection_score", f"must be a number, got {score!r}"
     name = box["detection_name"]
     if not isinstance(name, str) or name not in LABEL:
@@ -466,14 +482,6 @@ def _box_problem(box: Any, token: str) -> tuple[str, str] | None:
         return "attribute_name", (f"unknown attribute {attribute!r}; attributes: "
                                   f"{', '.join(ATTRIBUTE_NAMES)} or \"\"")
     return None
-
-
-def _fits_float(values: list) -> bool:
-    try:
-        [float(v) for v in values]
-    except OverflowError:
-        return False
-    return True
 
 
 # --------------------------------------------------------------------------- writing

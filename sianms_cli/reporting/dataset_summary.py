@@ -22,7 +22,7 @@ import numpy as np
 from sianms_cli.errors import SianmsError
 from sianms_cli.evaluation.config import DETECTION_CVPR_2019
 from sianms_cli.geometry.quaternion import quat_to_matrix
-from sianms_cli.io import check_writable_output, write_json
+from sianms_cli.io import check_outside_dataroot, check_writable_output, write_json
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.nuscenes.classes import CATEGORY_TO_DETECTION, DETECTION_CLASSES
 from sianms_cli.nuscenes.loader import NuScenesDB
@@ -69,20 +69,12 @@ def run(config: InfoConfig, out: str | Path | None = None, *, overwrite: bool = 
         progress: Progress = SILENT) -> dict:
     """The summary of ``config``'s dataset; also written as JSON to ``out`` when given."""
     if out is not None:
-        check_outside_dataroot(out, config.dataroot, "--out")
+        check_outside_dataroot(out, config.dataroot, "--out", "info")
         check_writable_output(out, overwrite=overwrite)
     summary = summarize(NuScenesDB(config.dataroot, config.version), config.max_sweeps, progress)
     if out is not None:
         write_json(out, summary)
     return summary
-
-
-def check_outside_dataroot(path: str | Path, dataroot: str | Path, flag: str) -> None:
-    """Refuse a ``flag`` file inside the dataroot: info reads a dataset and never writes into it
-    (with --overwrite, an --out naming one of its tables would replace that table)."""
-    if Path(path).resolve().is_relative_to(Path(dataroot).resolve()):
-        raise SianmsError(f"{flag}: {path} is inside the dataroot {dataroot}, which info only reads; "
-                          "write it elsewhere")
 
 
 def summarize(db: NuScenesDB, max_sweeps: int = 200, progress: Progress = SILENT) -> dict:

@@ -57,6 +57,14 @@ def test_bad_checkpoints_fail_clearly(tmp_path):
     torch.save(wrong, tmp_path / "wrong.pth")
     with pytest.raises(DataFormatError, match=r"conv1.weight.*\(64, 3, 3, 3\), expected \(64, 3, 7, 7\)"):
         ResNet50C4.from_checkpoint(tmp_path / "wrong.pth")
+    poisoned = dict(state)
+    poisoned["layer2.0.bn1.running_var"] = torch.full((128,), float("nan"))  # had loaded: NaN ROI features
+    torch.save(poisoned, tmp_path / "nan.pth")
+    with pytest.raises(DataFormatError, match=r"nan.pth: field 'layer2.0.bn1.running_var': holds a NaN"):
+        ResNet50C4.from_checkpoint(tmp_path / "nan.pth")
+    torch.save({0: torch.zeros(1)}, tmp_path / "int-keys.pth")  # had ended in an AttributeError traceback
+    with pytest.raises(DataFormatError, match=r"int-keys.pth: expected a flat state dict \(name -> tensor\)"):
+        ResNet50C4.from_checkpoint(tmp_path / "int-keys.pth")
     (tmp_path / "junk.pth").write_bytes(b"not a checkpoint")
     with pytest.raises(DataFormatError, match="junk.pth"):
         ResNet50C4.from_checkpoint(tmp_path / "junk.pth")

@@ -64,3 +64,16 @@ def test_the_file_detector_looks_images_up_by_token(db, tmp_path):
     assert got.scores.tolist() == [0.9, 0.4] and got.classes.tolist() == ["car", "car"]  # by score; bus not asked
     assert got.boxes.tolist() == [[5.0, 5.0, 9.0, 9.0], [1.0, 2.0, 30.0, 40.0]]
     assert len(detector.detections(other, two_cars(), SIZE, np.random.default_rng(0))) == 0
+
+
+def test_a_coordinate_no_float_can_hold_names_its_row_and_field(db, tmp_path):
+    """x1 = 10**400 (JSON allows any number of digits) had ended in an OverflowError traceback."""
+    from sianms_cli.errors import DataFormatError
+
+    token = str(db.table("sample_data").tokens[db.sample_data_modalities() == "camera"][0])
+    row = {"sample_data_token": token, "x1": 1.0, "y1": 2.0, "x2": 30.0, "y2": 40.0, "score": 0.4, "class": "car"}
+    path = tmp_path / "dets.json"
+    path.write_text(json.dumps([row, {**row, "x1": 10**400}]))
+    with pytest.raises(DataFormatError) as caught:
+        build_detector(f"file:{path}", db, ("car",))
+    assert str(caught.value) == f"{path}: field 'x1': row 1: expected a number a float can hold"

@@ -60,6 +60,11 @@ def test_user_file_takes_missing_fields_from_the_devkit(tmp_path):
     ({"min_precision": 1}, "min_precision", "[0, 1)"),
     ({"max_boxes_per_sample": 0}, "max_boxes_per_sample", "positive integer"),
     ({"mean_ap_weight": "5"}, "mean_ap_weight", "non-negative number"),
+    # each of these had ended in an OverflowError traceback
+    ({"min_recall": 1e308}, "min_recall", "[0, 0.99], got 1e+308"),
+    ({"class_range": {"car": 10**400}}, "class_range.car", "positive number"),
+    ({"dist_ths": [1, 10**400]}, "dist_ths", "positive numbers"),
+    ({"mean_ap_weight": 10**400}, "mean_ap_weight", "non-negative number"),
 ])
 def test_invalid_user_files_name_the_file_and_field(tmp_path, content, field, message):
     path = tmp_path / "bad.json"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -180,6 +181,23 @@ def test_run_refuses_the_output_before_any_work(reference_folder, tmp_path):
     for overwrite in (False, True):
         with pytest.raises(SianmsError, match="--out: .* is the results file"):
             run(config, config.results, overwrite=overwrite)
+
+
+def test_run_never_writes_over_the_dataset_or_its_config_file(reference_folder, tmp_path):
+    """`--out D/v1.0-mini/sample.json --overwrite` had replaced a dataset table, `--out c.json` the --config file."""
+    config = _config(reference_folder)
+    table = Path(config.dataroot) / config.version / "sample.json"
+    before = table.read_bytes()
+    for flag, place in (("--out", {"out": table}), ("--details", {"details": table})):
+        with pytest.raises(SianmsError) as caught:
+            run(config, overwrite=True, **place)
+        assert str(caught.value) == (f"{flag}: {table} is inside the dataroot {config.dataroot}, which metrics only "
+                                     "reads; write it elsewhere")
+    assert table.read_bytes() == before
+    own = tmp_path / "c.json"
+    own.write_text(json.dumps({"min_recall": 0.2}))
+    with pytest.raises(SianmsError, match=f"^--out: {own} is the --config file; write it elsewhere$"):
+        run(replace(config, detection_config=str(own)), own, overwrite=True)
 
 
 class _Recorder:

@@ -183,6 +183,8 @@ def test_too_many_boxes_in_a_sample(tmp_path):
     ('{"results": {}}', "no 'meta' object"),
     ('{"meta": [], "results": {}}', "field 'meta': must be an object"),
     ('{"meta": {"use_camera": 1}, "results": {}}', "field 'meta.use_camera': must be true or false"),
+    ('{"meta": {"score_thr": NaN}, "results": {}}', "field 'meta.score_thr': not a finite number"),
+    ('{"meta": {"x": {"y": [1, -Infinity]}}, "results": {}}', "field 'meta.x.y[1]': not a finite number"),
     ('{"meta": {}, "results": {"a": {}}}', "must be a list of boxes"),
     ('{"meta": {}, "results": {"a": [3]}}', "box 0: must be an object"),
     ('{"meta": {}, "results": []}', "expected '{' to open 'results'"),
