@@ -347,6 +347,12 @@ class _ParsedTable:
         the records in the error for a token missing from ``index``."""
         if kind.kind == "ref_list":
             lengths, tokens = column
+            too_long = lengths > len(index)  # the lists are padded to the longest: one long list would take it all
+            if too_long.any():
+                i = _first_row(too_long)
+                raise DataFormatError(self.path, f"lists {lengths[i]:,} tokens, more than {kind.table}.json's "
+                                                 f"{len(index):,}: one repeats", token=str(record_tokens[i]),
+                                      field=field)
             owners = np.repeat(np.arange(len(lengths)), lengths)
         else:
             tokens = column

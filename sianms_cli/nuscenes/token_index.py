@@ -71,6 +71,9 @@ class TokenIndex:
         self._order = order
         self._sorted_keys = sorted_keys
 
+    def __len__(self) -> int:
+        return len(self._tokens)
+
     def first_duplicate(self) -> tuple[int, int] | None:
         """Rows (earlier, later) of the first token (in row order) seen twice, or None."""
         if not self.by_string:

@@ -208,7 +208,12 @@ def scene_names_for(version: str, count: int | None) -> list[str]:
     if version.endswith("trainval"):
         val_count = min(len(official["val"]), max(round(count * 150 / 850), 1 if count >= 2 else 0))
         return sorted(official["train"][:count - val_count] + official["val"][:val_count])
+    if count > MAX_CUSTOM_SCENES:
+        raise SianmsError(f"--scenes must be at most {MAX_CUSTOM_SCENES:,} for version {version}, got {count}")
     return [f"scene-{i:04d}" for i in range(1, count + 1)]
+
+
+MAX_CUSTOM_SCENES = 10_000  # ten times nuScenes' 1,000: more is a typo that would run for weeks or exhaust memory
 
 
 def custom_splits(names: list[str]) -> dict[str, list[str]]:

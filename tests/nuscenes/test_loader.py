@@ -372,6 +372,18 @@ def test_dangling_references(tiny_dataroot, rewrite_table, tiny_records, table, 
         f"which is not in {referenced}.json")
 
 
+def test_a_token_list_longer_than_its_table_is_refused_before_it_is_padded(tiny_dataroot, rewrite_table, tiny_records):
+    """200,000 copies of one attribute token on one annotation had padded every annotation's list to
+    that width (30 GB on the mini)."""
+    attributes = tiny_records["attribute"]
+    path = rewrite_table("sample_annotation", lambda records: records[1].__setitem__(
+        "attribute_tokens", [attributes[0]["token"]] * (len(attributes) + 1)))
+    token = tiny_records["sample_annotation"][1]["token"]
+    assert str(_load_error(tiny_dataroot)) == (
+        f"{path}: record {token}: field 'attribute_tokens': lists {len(attributes) + 1} tokens, more than "
+        f"attribute.json's {len(attributes)}: one repeats")
+
+
 @pytest.mark.parametrize("filename, problem", [
     ("../outside.jpg", "resolves outside the dataroot"),
     ("/data/sets/nuscenes/samples/x.jpg", "is absolute; it must be relative to the dataroot"),

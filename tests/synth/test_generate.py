@@ -278,6 +278,7 @@ def test_trainval_names_come_from_the_devkit_train_and_val_lists():
     (dict(version="v1.0-trainval"), "--scenes is required"),
     (dict(version="v1.0-trainval", scenes=851), r"v1.0-trainval has 850 scenes \(700 train, 150 val\); --scenes 851"),
     (dict(version="v1.0-test", scenes=151), r"v1.0-test has 150 scenes \(150 test\); --scenes 151 asks for more"),
+    (dict(version="v2-custom", scenes=10**12), r"^--scenes must be at most 10,000 for version v2-custom, got 10+$"),
     (dict(scenes=1, image_scale=0.0), "--image-scale"),
     (dict(scenes=1, image_scale=float("nan")), "--image-scale"),
     (dict(scenes=1, sensors="radar"), "--sensors must be one of"),
