@@ -111,40 +111,34 @@ def test_a_folder_named_like_a_checkpoint_is_called_a_folder(tmp_path):
         load_checkpoint(tmp_path / CHECKPOINT)
 
 
-def test_a_resume_whose_optimizer_state_does_not_fit_names_the_field(tmp_path):
+def restore_edited(tmp_path, edit):
+    """Resume a run whose checkpoint was saved as ``edit(checkpoint)``; restore into a fresh Adam."""
     net, checkpoint = small_checkpoint()
     with RunFolder.open(tmp_path / "run", kind="siamese", config=checkpoint.config) as run:
-        run.save(replace(checkpoint, optimizer={"x": 1}), curves=False)
+        run.save(edit(checkpoint), curves=False)
     resumed = RunFolder.open(tmp_path / "run", kind="siamese", config=checkpoint.config, resume=True)
-    with pytest.raises(DataFormatError, match="checkpoint.pt: field 'optimizer': the optimizer state does not fit"):
-        with resumed:
-            resumed.restore(net, torch.optim.Adam(net.parameters()))
+    with resumed:
+        resumed.restore(net, torch.optim.Adam(net.parameters()))
 
 
-def test_a_resume_from_an_epoch_beyond_the_history_names_the_field(tmp_path):
-    """An edited epoch of 5 over 2 rows of history had been resumed at epoch 6."""
-    net, checkpoint = small_checkpoint()
-    with RunFolder.open(tmp_path / "run", kind="siamese", config=checkpoint.config) as run:
-        run.save(replace(checkpoint, epoch=5), curves=False)
-    resumed = RunFolder.open(tmp_path / "run", kind="siamese", config=checkpoint.config, resume=True)
-    with pytest.raises(DataFormatError, match=r"checkpoint.pt: field 'epoch': 5 epochs done, but the history holds "
-                                              r"2 rows$"):
-        with resumed:
-            resumed.restore(net, torch.optim.Adam(net.parameters()))
-
-
-def test_a_resume_whose_optimizer_moments_have_another_shape_names_the_field(tmp_path):
-    """torch loads Adam's moments whatever their shape: the first step had ended in a traceback."""
-    net, checkpoint = small_checkpoint()
+def with_moment(checkpoint, moment):
     optimizer = checkpoint.optimizer
-    state = {**optimizer["state"], 1: {**optimizer["state"][1], "exp_avg": torch.zeros(5)}}
-    with RunFolder.open(tmp_path / "run", kind="siamese", config=checkpoint.config) as run:
-        run.save(replace(checkpoint, optimizer={**optimizer, "state": state}), curves=False)
-    resumed = RunFolder.open(tmp_path / "run", kind="siamese", config=checkpoint.config, resume=True)
-    with pytest.raises(DataFormatError, match=r"checkpoint.pt: field 'optimizer': state 1 'exp_avg' has shape "
-                                              r"\(5,\), its weight \(2,\) \(another config\?\)$"):
-        with resumed:
-            resumed.restore(net, torch.optim.Adam(net.parameters()))
+    state = {**optimizer["state"], 1: {**optimizer["state"][1], "exp_avg": moment}}
+    return replace(checkpoint, optimizer={**optimizer, "state": state})
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda checkpoint: replace(checkpoint, optimizer={"x": 1}),
+     "field 'optimizer': the optimizer state does not fit"),
+    # torch loads Adam's moments whatever their shape: the first step had ended in a traceback
+    (lambda checkpoint: with_moment(checkpoint, torch.zeros(5)),
+     r"field 'optimizer': state 1 'exp_avg' has shape \(5,\), its weight \(2,\) \(another config\?\)$"),
+    # an edited epoch of 5 over 2 rows of history had been resumed at epoch 6
+    (lambda checkpoint: replace(checkpoint, epoch=5), r"field 'epoch': 5 epochs done, but the history holds 2 rows$"),
+])
+def test_a_resume_from_a_checkpoint_that_does_not_fit_names_the_field(tmp_path, edit, message):
+    with pytest.raises(DataFormatError, match=f"checkpoint.pt: {message}"):
+        restore_edited(tmp_path, edit)
 
 
 def test_weights_that_do_not_fit_name_the_key(tmp_path):
