@@ -64,6 +64,7 @@ ranges, thresholds 0.5/1/2/4 m, TP errors at 2 m."""
 PRESETS: dict[str, dict[str, Any]] = {"detection_cvpr_2019": DETECTION_CVPR_2019, "paper": PAPER}
 
 CENTER_DISTANCE = "center_distance"
+MAX_DIST_THS = 100  # each threshold is a 101-point curve per class and region; the devkit's have 4
 
 
 @dataclass(frozen=True, eq=True)
@@ -150,6 +151,8 @@ class DetectionConfig:
             fail("dist_ths", f"must be a non-empty list of positive numbers of metres, got {dist_ths!r}")
         if len(set(dist_ths)) != len(dist_ths):
             fail("dist_ths", f"thresholds must be distinct, got {dist_ths!r}")
+        if len(dist_ths) > MAX_DIST_THS:
+            fail("dist_ths", f"at most {MAX_DIST_THS} thresholds (the devkit's: 4), got {len(dist_ths):,}")
         if not is_number(merged["dist_th_tp"]) or merged["dist_th_tp"] not in dist_ths:
             fail("dist_th_tp", f"must be one of dist_ths {dist_ths!r}, got {merged['dist_th_tp']!r}")
         min_recall, min_precision = merged["min_recall"], merged["min_precision"]

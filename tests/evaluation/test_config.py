@@ -65,6 +65,7 @@ def test_user_file_takes_missing_fields_from_the_devkit(tmp_path):
     ({"class_range": {"car": 10**400}}, "class_range.car", "positive number"),
     ({"dist_ths": [1, 10**400]}, "dist_ths", "positive numbers"),
     ({"mean_ap_weight": 10**400}, "mean_ap_weight", "non-negative number"),
+    ({"dist_ths": [0.5 + i for i in range(101)]}, "dist_ths", "at most 100 thresholds (the devkit's: 4), got 101"),
 ])
 def test_invalid_user_files_name_the_file_and_field(tmp_path, content, field, message):
     path = tmp_path / "bad.json"
