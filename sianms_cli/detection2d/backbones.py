@@ -197,7 +197,8 @@ class ResNet50C4(nn.Module):
             if tuple(state[key].shape) != tuple(value.shape):
                 raise DataFormatError(path, f"shape {tuple(state[key].shape)}, expected {tuple(value.shape)}", field=key)
             if state[key].is_floating_point() and not torch.isfinite(state[key]).all():
-                raise DataFormatError(path, "holds a NaN or an infinity: every ROI feature would be one", field=key)
+                raise DataFormatError(path, "holds a NaN or an infinity: every ROI feature would be one",
+                                      field=key)
         model.load_state_dict({key: state[key].float() for key in expected})
         return model
 

@@ -300,7 +300,8 @@ class SceneEvaluator:
                                  filters=[("sample_token", "==", sample_token)])
         where = pc.index_in(pa.array(detection_ids.tolist(), pa.string()), value_set=table["detection_id"].combine_chunks())
         features = table["roi_feature"].take(where)
-        return embed(self.encoder, decode_roi_features(features, roi_feature_shape(detections_path), detections_path))
+        shape = roi_feature_shape(detections_path)
+        return embed(self.encoder, decode_roi_features(features, shape, detections_path))
 
     def _merged(self, records: SceneRecords, position: int, kind: str, inputs: SampleInputs, first: np.ndarray,
                 second: np.ndarray, distance: np.ndarray, cameras: dict, lidar: tuple[np.ndarray, np.ndarray]

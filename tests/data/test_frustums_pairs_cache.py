@@ -185,7 +185,8 @@ def test_schema_round_trip_and_atomic_shards(tmp_path):
     assert back.schema.metadata == schemas["detections"].metadata
     assert back.schema.field("roi_feature").type == pa.binary(8)
     assert back.to_pylist() == table.to_pylist()
-    assert np.array_equal(decode_roi_features(back.column("roi_feature"), (1, 2, 2), tmp_path / "detections")[0], feature)
+    decoded = decode_roi_features(back.column("roi_feature"), (1, 2, 2), tmp_path / "detections")
+    assert np.array_equal(decoded[0], feature)
     manifest = write_manifest(tmp_path, {"seed": 0}, ["s", "t"], tmp_path)
     assert manifest["counts"] == {"samples": 1, "detections": 1, "frustums": 0, "pairs": 0}
     assert manifest["missing_shards"] == ["t"] and not manifest["complete"]

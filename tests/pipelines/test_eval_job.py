@@ -200,7 +200,8 @@ def test_overwrite_replaces_a_stale_evaluation_and_its_report(tmp_path):
 
 
 @pytest.mark.parametrize("foreign", ["notes.txt", "photos/a.jpg", "results_final.json", "metrics_vanilla.json.bak",
-                                     "report/", "report/notes.txt", "pictures/mine.jpg", "pictures/mine.png", "scenes/notes.txt",
+                                     "report/", "report/notes.txt", "pictures/mine.jpg", "pictures/mine.png",
+                                     "scenes/notes.txt",
                                      "scenes/my-notes.parquet", "scenes/scene-0002.parquet"])
 def test_overwrite_refuses_a_folder_holding_what_eval_does_not_write(tmp_path, foreign):
     out = stale_evaluation(tmp_path / "eval")
