@@ -6,6 +6,7 @@ on one line and exits with code 2, never a traceback. Our own invariants use ``a
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 
@@ -69,7 +70,21 @@ def check_seed(seed: int) -> None:
         raise SianmsError(f"--seed must be between 0 and 2**63 - 1, got {seed}")
 
 
+WORKERS_PER_CPU = 4
+"""Each worker is a CPU-bound process of its own (one torch thread, a few hundred MB): past the
+CPUs it adds memory, not speed, and far past them it is a typo that exhausts memory."""
+
+
+def usable_cpus() -> int:
+    """The CPUs this process may run on (its affinity mask where the OS has one)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
 def check_workers(workers: int) -> None:
-    """Refuse a ``--workers`` below 1, before anything is written."""
+    """Refuse a ``--workers`` below 1 or above WORKERS_PER_CPU per usable CPU, before anything is written."""
     if workers < 1:
         raise SianmsError(f"--workers must be at least 1, got {workers}")
+    most = WORKERS_PER_CPU * usable_cpus()
+    if workers > most:
+        raise SianmsError(f"--workers must be at most {most} ({WORKERS_PER_CPU} per CPU this process may use, "
+                          f"each worker a process of its own), got {workers}")

@@ -37,7 +37,7 @@ import numpy as np
 from sianms_cli.errors import DataFormatError, SianmsError
 from sianms_cli.json_stream import array_pieces, collector_paused, types_within
 from sianms_cli.nuscenes.sensors import read_image, read_pcd_bin, resolve_data_path
-from sianms_cli.nuscenes.tables import SCHEMAS, TABLE_NAMES, Field, check_value, check_version_name
+from sianms_cli.nuscenes.tables import NUL, SCHEMAS, TABLE_NAMES, Field, check_value, check_version_name
 from sianms_cli.nuscenes.token_index import TokenIndex
 
 _REF_KINDS = ("ref", "optional_ref", "ref_list")
@@ -80,8 +80,12 @@ def _diagnose(
     raise AssertionError(f"{path}: {field}: fast check rejected values the exact check accepts")
 
 
+def _is_text(values: list) -> bool:
+    return types_within(values, (str,)) and NUL not in "".join(values)
+
+
 def _strings(values: list, allow_empty: bool) -> np.ndarray | None:
-    if not types_within(values, (str,)):
+    if not _is_text(values):
         return None
     # An explicit width saves numpy a second pass to discover it.
     array = np.array(values, dtype=f"<U{max(map(len, values), default=1) or 1}")
@@ -131,7 +135,7 @@ def _convert(values: list, kind: Field) -> Any:
     if kind.kind == "optional_ref":
         return _strings(values, allow_empty=True)
     if kind.kind == "str":
-        if not types_within(values, (str,)):
+        if not _is_text(values):
             return None
         # Stored encoded: 1 byte per ASCII character instead of 4 (filenames of 2.6 M records).
         return np.array([value.encode(_TEXT_ENCODING, _TEXT_ERRORS) for value in values],

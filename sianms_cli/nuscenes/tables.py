@@ -188,10 +188,15 @@ def _describe(value: object) -> str:
     return f"{text} ({type(value).__name__})"
 
 
+NUL = "\x00"
+"""No string of a table may hold it: numpy's string arrays, which hold every column, drop trailing
+NULs, so "a\x00" would be read as "a" (another record's token, or a scene name no split lists)."""
+
+
 def _expectation(field: Field) -> str:
     return {
-        "token": "a non-empty string",
-        "str": "a string",
+        "token": "a non-empty string without NUL",
+        "str": "a string without NUL",
         "int": "an integer",
         "bool": "true or false",
         "vector": f"a list of {field.length} finite numbers",
@@ -203,12 +208,16 @@ def _expectation(field: Field) -> str:
     }[field.kind]
 
 
+def _is_text(value: object) -> bool:
+    return isinstance(value, str) and NUL not in value
+
+
 def _is_valid(field: Field, value: object) -> bool:
     kind = field.kind
     if kind in ("token", "ref"):
-        return isinstance(value, str) and value != ""
+        return _is_text(value) and value != ""
     if kind in ("str", "optional_ref"):
-        return isinstance(value, str)
+        return _is_text(value)
     if kind == "int":
         return type(value) is int and _INT64_MIN <= value <= _INT64_MAX
     if kind == "bool":
@@ -230,7 +239,7 @@ def _is_valid(field: Field, value: object) -> bool:
             )
         )
     assert kind == "ref_list", kind
-    return type(value) is list and all(isinstance(v, str) and v != "" for v in value)
+    return type(value) is list and all(_is_text(v) and v != "" for v in value)
 
 
 def _is_pinhole(matrix: list[list[float]]) -> bool:

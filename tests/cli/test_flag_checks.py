@@ -1,6 +1,8 @@
 """Every command's config refuses a flag value that would fail deep in the run, naming the flag."""
 
 import math
+import subprocess
+import sys
 
 import pytest
 
@@ -82,4 +84,27 @@ def test_demo_checks_its_worker_count_before_writing(tmp_path):
 
     with pytest.raises(SianmsError, match="--workers must be at least 1, got 0"):
         run(DemoConfig(quick=True), tmp_path / "demo", workers=0)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("cpus, workers, allowed", [(2, 8, True), (2, 9, False), (1, 4, True), (64, 257, False)])
+def test_workers_are_bounded_by_the_usable_cpus(monkeypatch, cpus, workers, allowed):
+    from sianms_cli import errors
+
+    monkeypatch.setattr(errors, "usable_cpus", lambda: cpus)
+    if allowed:
+        errors.check_workers(workers)
+    else:
+        with pytest.raises(SianmsError, match=f"--workers must be at most {4 * cpus} .*, got {workers}$"):
+            errors.check_workers(workers)
+
+
+def test_a_worker_count_past_the_bound_is_one_error_line_before_anything_is_written(tmp_path):
+    from sianms_cli import errors
+
+    result = subprocess.run([sys.executable, "-m", "sianms_cli", "synth", "--out", str(tmp_path / "out"),
+                             "--workers", str(errors.WORKERS_PER_CPU * errors.usable_cpus() + 1)],
+                            capture_output=True, text=True)
+    assert result.returncode == 2
+    assert result.stderr.startswith("error: --workers must be at most ") and result.stderr.count("\n") == 1
     assert list(tmp_path.iterdir()) == []

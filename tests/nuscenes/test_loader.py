@@ -243,7 +243,10 @@ def test_missing_token_names_the_position(tiny_dataroot, rewrite_table):
     ("sample_annotation", 3, "attribute_tokens", "abc", "expected a list of attribute tokens, got 'abc' (str)"),
     ("sample_annotation", 5, "visibility_token", None, "expected a visibility token or \"\", got None (NoneType)"),
     ("sample_data", 3, "is_key_frame", 1, "expected true or false, got 1 (int)"),
-    ("sample_data", 0, "filename", 7, "expected a string, got 7 (int)"),
+    ("sample_data", 0, "filename", 7, "expected a string without NUL, got 7 (int)"),
+    # numpy's string arrays drop trailing NULs: read as it stands, "...\x00" would name another scene
+    ("scene", 0, "name", "scene-0001\x00", "expected a string without NUL, got 'scene-0001\\x00' (str)"),
+    ("sample", 1, "prev", "a\x00", "expected a sample token or \"\", got 'a\\x00' (str)"),
     ("sample_data", 5, "sample_token", "", "expected a sample token, got '' (str)"),
     ("ego_pose", 1, "timestamp", 2**63, "expected an integer, got 9223372036854775808 (int)"),
     ("calibrated_sensor", 0, "camera_intrinsic", [[1, 0], [0, 1]], "expected [] or a 3x3 pinhole matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]] of finite numbers, fx and fy > 0, got [[1, 0], [0, 1]] (list)"),
@@ -341,7 +344,7 @@ def test_a_camera_calibration_without_an_intrinsic_is_named(tiny_dataroot, rewri
 def test_empty_token_names_the_position(tiny_dataroot, rewrite_table):
     path = rewrite_table("log", lambda records: records[0].__setitem__("token", ""))
     assert str(_load_error(tiny_dataroot)) == (
-        f"{path}: field 'token': record at position 0: expected a non-empty string, got '' (str)")
+        f"{path}: field 'token': record at position 0: expected a non-empty string without NUL, got '' (str)")
 
 
 def test_duplicate_token(tiny_dataroot, rewrite_table, tiny_records):

@@ -10,6 +10,7 @@ from sianms_cli.nuscenes.tables import (
     INTRINSIC,
     SCHEMAS,
     SENSORS,
+    STR,
     TABLE_NAMES,
     TOKEN,
     VISIBILITIES,
@@ -101,7 +102,9 @@ def test_check_value_accepts(field, value):
     (INT, True, "expected an integer, got True (bool)"),
     (INT, 2**63, "expected an integer, got 9223372036854775808 (int)"),
     (INT, 3.0, "expected an integer, got 3.0 (float)"),
-    (TOKEN, "", "expected a non-empty string, got '' (str)"),
+    (TOKEN, "", "expected a non-empty string without NUL, got '' (str)"),
+    (TOKEN, "a\x00", "expected a non-empty string without NUL, got 'a\\x00' (str)"),
+    (STR, "scene-0001\x00", "expected a string without NUL, got 'scene-0001\\x00' (str)"),
     (vector(3), [1.0, 2.0], "expected a list of 3 finite numbers, got [1.0, 2.0] (list)"),
     (vector(3), [1.0, True, 2.0], "expected a list of 3 finite numbers, got [1.0, True, 2.0] (list)"),
     (vector(3), [1.0, float("nan"), 2.0], "expected a list of 3 finite numbers, got [1.0, nan, 2.0] (list)"),
@@ -114,6 +117,7 @@ def test_check_value_accepts(field, value):
     (optional_ref("sample"), None, "expected a sample token or \"\", got None (NoneType)"),
     (ref_list("attribute"), "abc", "expected a list of attribute tokens, got 'abc' (str)"),
     (ref_list("attribute"), [""], "expected a list of attribute tokens, got [''] (list)"),
+    (ref_list("attribute"), ["a\x00"], "expected a list of attribute tokens, got ['a\\x00'] (list)"),
 ])
 def test_check_value_names_the_problem(field, value, problem):
     assert check_value(field, value) == problem
