@@ -1,3 +1,5 @@
+from pathlib import Path
+
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -190,3 +192,15 @@ def test_schema_round_trip_and_atomic_shards(tmp_path):
     manifest = write_manifest(tmp_path, {"seed": 0}, ["s", "t"], tmp_path)
     assert manifest["counts"] == {"samples": 1, "detections": 1, "frustums": 0, "pairs": 0}
     assert manifest["missing_shards"] == ["t"] and not manifest["complete"]
+
+
+@pytest.mark.parametrize("binary", [pa.binary(8), pa.binary(), pa.large_binary()])
+def test_roi_features_decode_from_sliced_chunks_of_any_binary_type(binary):
+    # A filtered read hands over chunks that are slices of larger buffers; each value is read from
+    # where its slice starts.
+    features = np.arange(5 * 4, dtype="<f2").reshape(5, 1, 2, 2)
+    values = pa.array([feature.tobytes() for feature in features], binary)
+    column = pa.chunked_array([values.slice(1, 2), values.slice(3, 2), values.slice(0, 1)])
+    decoded = decode_roi_features(column, (1, 2, 2), Path("detections"))
+    assert np.array_equal(decoded, features[[1, 2, 3, 4, 0]])
+    assert np.array_equal(decode_roi_features(values.slice(2), (1, 2, 2), Path("d")), features[2:])
