@@ -40,7 +40,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, NamedTuple
 
-from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_seed, check_workers
+from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_epochs, check_seed, check_workers
 from sianms_cli.io import exclusive_lock, make_folder, read_json, write_json
 from sianms_cli.json_stream import is_finite_number
 from sianms_cli.progress import SILENT, Progress
@@ -125,9 +125,8 @@ class DemoConfig:
             raise SianmsError(f"--scenes must be between 2 (one training and one validation scene) and {most} "
                               f"({self.version}), got {self.scenes}")
         for name in ("siamese_epochs", "fpointnet_epochs"):
-            value = getattr(self, name)
-            if value is not None and value < 1:
-                raise SianmsError(f"--{name.replace('_', '-')} must be at least 1, got {value}")
+            if getattr(self, name) is not None:
+                check_epochs(getattr(self, name), f"--{name.replace('_', '-')}")
 
     @property
     def profile(self) -> str:

@@ -70,9 +70,11 @@ def check_seed(seed: int) -> None:
         raise SianmsError(f"--seed must be between 0 and 2**63 - 1, got {seed}")
 
 
-WORKERS_PER_CPU = 4
-"""Each worker is a CPU-bound process of its own (one torch thread, a few hundred MB): past the
-CPUs it adds memory, not speed, and far past them it is a typo that exhausts memory."""
+PER_CPU_LIMIT = 4
+"""``--workers`` and ``--threads`` are at most this many per usable CPU. Each worker is a CPU-bound
+process of its own (one torch thread, a few hundred MB) and each torch thread a CPU-bound thread:
+past the CPUs they add memory and contention, not speed, and far past them they are a typo that
+exhausts memory or the process limit (``--threads 100000`` had crashed OpenBLAS)."""
 
 
 def usable_cpus() -> int:
@@ -80,11 +82,25 @@ def usable_cpus() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
+def check_per_cpu_count(flag: str, count: int) -> None:
+    """Refuse a count of workers or threads below 1 or above PER_CPU_LIMIT per usable CPU."""
+    if count < 1:
+        raise SianmsError(f"{flag} must be at least 1, got {count}")
+    most = PER_CPU_LIMIT * usable_cpus()
+    if count > most:
+        raise SianmsError(f"{flag} must be at most {most} ({PER_CPU_LIMIT} per CPU this process may use), "
+                          f"got {count}")
+
+
 def check_workers(workers: int) -> None:
-    """Refuse a ``--workers`` below 1 or above WORKERS_PER_CPU per usable CPU, before anything is written."""
-    if workers < 1:
-        raise SianmsError(f"--workers must be at least 1, got {workers}")
-    most = WORKERS_PER_CPU * usable_cpus()
-    if workers > most:
-        raise SianmsError(f"--workers must be at most {most} ({WORKERS_PER_CPU} per CPU this process may use, "
-                          f"each worker a process of its own), got {workers}")
+    """Refuse a ``--workers`` the machine cannot hold, before anything is written."""
+    check_per_cpu_count("--workers", workers)
+
+
+MAX_EPOCHS = 10_000  # 50 times the original F-PointNets' 201: more is a typo that would run for ever
+
+
+def check_epochs(epochs: int, flag: str = "--epochs") -> None:
+    """Refuse an epoch count outside [1, :data:`MAX_EPOCHS`]."""
+    if not 1 <= epochs <= MAX_EPOCHS:
+        raise SianmsError(f"{flag} must be in [1, {MAX_EPOCHS:,}], got {epochs}")

@@ -12,7 +12,7 @@ from typing import Callable, NoReturn
 import typer
 
 from sianms_cli import __version__
-from sianms_cli.errors import SianmsError
+from sianms_cli.errors import SianmsError, check_per_cpu_count
 from sianms_cli.io import describe_os_error, expand_home
 from sianms_cli.processes import Terminated, signal_received
 
@@ -107,6 +107,15 @@ def follower_rank() -> int | None:
     """This process's rank when it is a non-zero rank under torchrun (which sets RANK), else None."""
     rank = os.environ.get("RANK", "0")
     return None if rank == "0" else int(rank) if rank.isdigit() else None
+
+
+def use_torch_threads(threads: int | None) -> None:
+    """Apply --threads after checking it (torch is imported here, never when the CLI starts)."""
+    if threads is not None:
+        check_per_cpu_count("--threads", threads)
+        import torch
+
+        torch.set_num_threads(threads)
 
 
 def say_interrupted(terminated: bool) -> None:

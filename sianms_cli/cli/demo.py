@@ -8,7 +8,7 @@ from typing import Optional
 
 import typer
 
-from sianms_cli.cli._app import ProgressBar, command
+from sianms_cli.cli._app import ProgressBar, command, use_torch_threads
 
 
 @command("demo")
@@ -39,10 +39,7 @@ def demo_cli(
     """
     from sianms_cli.demo import STAGES, DemoConfig, run, stage_shares
 
-    if threads is not None:
-        import torch
-
-        torch.set_num_threads(threads)
+    use_torch_threads(threads)
     config = DemoConfig(quick=quick, seed=seed, version=version, scenes=scenes, siamese_epochs=siamese_epochs,
                         fpointnet_epochs=fpointnet_epochs, precision=precision)
 

@@ -13,7 +13,7 @@ from typing import Any, Callable, Optional
 
 import typer
 
-from sianms_cli.cli._app import ProgressBar, command, command_group, follower_rank
+from sianms_cli.cli._app import ProgressBar, command, command_group, follower_rank, use_torch_threads
 
 train_app = command_group("train", "Train the paper's networks on a prepared cache (`sianms prepare`).")
 
@@ -35,14 +35,6 @@ RESUME = typer.Option(False, "--resume", help="Continue the run at --out from it
 OVERWRITE = typer.Option(False, "--overwrite", help="Replace the run at --out.")
 QUIET = typer.Option(False, "--quiet", help="No progress bar, no per-epoch lines.")
 AS_JSON = typer.Option(False, "--json", help="Print the result as JSON (and nothing else) on stdout.")
-
-
-def _use_threads(threads: int | None) -> None:
-    """Apply --threads (torch is imported here, never when the CLI starts)."""
-    if threads is not None:
-        import torch
-
-        torch.set_num_threads(threads)
 
 
 def train_command(name: str) -> Callable[[Callable], Callable]:
@@ -120,7 +112,7 @@ def siamese_cli(
     """Train the siamese re-identification network (paper §III-B, §IV) with online hard negatives."""
     from sianms_cli.training.siamese import SiameseConfig, parse_dims, run, sweep, sweep_markdown
 
-    _use_threads(threads)
+    use_torch_threads(threads)
     follower = follower_rank() is not None
     quiet = quiet or follower
     config = SiameseConfig(
@@ -218,7 +210,7 @@ def fpointnet_cli(
     (and, with --multiview, the union frustums of its cross-camera pairs)."""
     from sianms_cli.training.fpointnet import FPointNetConfig, run
 
-    _use_threads(threads)
+    use_torch_threads(threads)
     follower = follower_rank() is not None
     quiet = quiet or follower
     config = FPointNetConfig(

@@ -52,7 +52,7 @@ from sianms_cli.data.frustum_dataset import Augmentation, FrustumSelection, clas
     empty_batch, frustum_shards, iterate_batches
 from sianms_cli.data.multiview import MultiviewSettings, build_union_shards, multiview_settings
 from sianms_cli.data.streams import check_stream_count, check_streams, rank_epoch_streams, stream_steps
-from sianms_cli.errors import DataFormatError, SianmsError, check_seed
+from sianms_cli.errors import DataFormatError, SianmsError, check_epochs, check_seed
 from sianms_cli.geometry.iou3d import box_iou3d
 from sianms_cli.models.fpointnet import NUM_HEADING_BINS, FPointNetV1
 from sianms_cli.models.fpointnet_losses import decode_boxes, fpointnet_loss
@@ -64,7 +64,6 @@ from sianms_cli.training.run import (
     Checkpoint,
     RunFolder,
     cache_inputs,
-    check_epochs,
     check_losses_finite,
     choose_device,
     epoch_generator,

@@ -615,15 +615,6 @@ def _check_optimizer_shapes(optimizer: torch.optim.Optimizer, path: Path) -> Non
                                             f"{tuple(weight.shape)} (another config?)", field="optimizer")
 
 
-MAX_EPOCHS = 10_000  # 50 times the original F-PointNets' 201: more is a typo that would run for ever
-
-
-def check_epochs(epochs: int) -> None:
-    """Refuse an --epochs outside [1, :data:`MAX_EPOCHS`]."""
-    if not 1 <= epochs <= MAX_EPOCHS:
-        raise SianmsError(f"--epochs must be in [1, {MAX_EPOCHS:,}], got {epochs}")
-
-
 def check_losses_finite(row: dict[str, Any]) -> None:
     """Stop a training whose epoch ended on a non-finite loss (a learning rate far too high, or a
     resumed checkpoint with non-finite weights): its weights are no longer numbers, and going on

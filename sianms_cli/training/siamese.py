@@ -63,13 +63,13 @@ from sianms_cli.data.cache import complete_manifest
 from sianms_cli.data.siamese import PairingBatch, Scene, cache_feature_shape, epoch_batches, feature_statistics, \
     hardest_candidates, iter_scenes, shard_paths
 from sianms_cli.data.streams import check_stream_count, check_streams, rank_epoch_streams, stream_steps
-from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_seed
+from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_epochs, check_seed
 from sianms_cli.io import make_folder, partial_of, read_json, write_json, write_text
 from sianms_cli.models.losses import double_margin_loss, pair_distances, positive_terms
 from sianms_cli.models.siamese import SiameseEncoder, parameter_count
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.training.precision import MixedPrecision, check_precision, resolve_precision
-from sianms_cli.training.run import Checkpoint, RunFolder, cache_inputs, check_epochs, check_losses_finite, \
+from sianms_cli.training.run import Checkpoint, RunFolder, cache_inputs, check_losses_finite, \
     checkpoint_file, choose_device, epoch_generator, finish_distributed, init_distributed, load_checkpoint, \
     load_state, plain, row_counts, seed_everything, set_learning_rate, step_decay, sum_over_ranks, writes_outputs
 

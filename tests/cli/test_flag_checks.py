@@ -103,8 +103,33 @@ def test_a_worker_count_past_the_bound_is_one_error_line_before_anything_is_writ
     from sianms_cli import errors
 
     result = subprocess.run([sys.executable, "-m", "sianms_cli", "synth", "--out", str(tmp_path / "out"),
-                             "--workers", str(errors.WORKERS_PER_CPU * errors.usable_cpus() + 1)],
+                             "--workers", str(errors.PER_CPU_LIMIT * errors.usable_cpus() + 1)],
                             capture_output=True, text=True)
     assert result.returncode == 2
     assert result.stderr.startswith("error: --workers must be at most ") and result.stderr.count("\n") == 1
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("flag", ["siamese_epochs", "fpointnet_epochs"])
+@pytest.mark.parametrize("epochs", [0, 20_000])
+def test_demo_bounds_each_trainings_epochs_by_its_own_flag_before_any_stage(tmp_path, flag, epochs):
+    # 20,000 had passed the demo's check, and the demo ran synth and both prepares (or, with
+    # --overwrite, deleted the finished training stages) before the training refused "--epochs".
+    from sianms_cli.demo import run
+
+    name = flag.replace("_", "-")
+    with pytest.raises(SianmsError, match=f"^--{name} must be in \\[1, 10,000\\], got {epochs}$"):
+        run(DemoConfig(quick=True, **{flag: epochs}), tmp_path / "demo")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("command", [["demo", "--quick"], ["train", "siamese", "--cache", "c"],
+                                     ["train", "fpointnet", "--cache", "c"]])
+def test_threads_past_the_bound_are_one_error_line_before_torch_or_anything_else(tmp_path, command):
+    # 10,000,000,000 had been an OverflowError traceback inside torch; 100,000 crashed OpenBLAS.
+    result = subprocess.run([sys.executable, "-m", "sianms_cli", *command, "--out", str(tmp_path / "out"),
+                             "--threads", "10000000000"], capture_output=True, text=True)
+    assert result.returncode == 2
+    assert result.stderr.startswith("error: --threads must be at most ") and result.stderr.count("\n") == 1
+    assert result.stderr.endswith("got 10000000000\n")
     assert list(tmp_path.iterdir()) == []
