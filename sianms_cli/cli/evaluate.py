@@ -35,7 +35,8 @@ def eval_cli(
                                          "first)."),
     workers: int = typer.Option(1, help="Processes for the scenes (the output does not depend on it)."),
     shard: Optional[str] = typer.Option(None, help="K/N: do only the scenes at positions K mod N (array jobs)."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an evaluation of another config at --out."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an evaluation of another config at --out, "
+                                                              "or redo this one's finish stage."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
     as_json: bool = typer.Option(False, "--json", help="Print the comparison as JSON."),
 ) -> None:

@@ -47,9 +47,61 @@ PICTURE_METHODS = ("vanilla", "axis-nms", "sianms", "oracle")  # the paper's Fig
 RESULTS_META = {"use_camera": True, "use_lidar": True, "use_radar": False, "use_map": False, "use_external": False}
 
 
+SCENE_AGAIN = "delete it and rerun the same `sianms eval`, which evaluates its scene again"
+BOX_KINDS = ("single", SIANMS, ORACLE)  # what the scenes stage writes in ``kind``
+
+
 def _read_scene_table(path: Path) -> pa.Table:
-    with reading_shard(path, "delete it and rerun the same `sianms eval`, which evaluates its scene again"):
-        return pq.read_table(path, schema=BOXES_SCHEMA)
+    """One scene's boxes table, refused (naming the file, row and field) where an edit or another
+    file broke it: read as it stands, a missing column is all nulls and a bad value is blamed on
+    the results file its box goes to."""
+    with reading_shard(path, SCENE_AGAIN):
+        schema = pq.read_schema(path)
+        for field in BOXES_SCHEMA:
+            index = schema.get_field_index(field.name)
+            if index < 0:
+                raise DataFormatError(path, f"no such column; {SCENE_AGAIN}", field=field.name)
+            if schema.field(index).type != field.type:
+                raise DataFormatError(path, f"{schema.field(index).type} where eval writes {field.type}; "
+                                            f"{SCENE_AGAIN}", field=field.name)
+        table = pq.read_table(path, schema=BOXES_SCHEMA)
+    for name, broken, expected in _broken_rows(table):
+        rows = np.flatnonzero(broken)
+        if len(rows):
+            raise DataFormatError(path, f"row {rows[0]}: expected {expected}; {SCENE_AGAIN}", field=name)
+    return table
+
+
+def _broken_rows(table: pa.Table) -> list[tuple[str, np.ndarray, str]]:
+    """(field, rows (N,) bool where its value breaks what the scenes stage writes, what it writes)."""
+    def values(name: str) -> np.ndarray:
+        return table[name].to_numpy(zero_copy_only=False)
+
+    def missing(name: str) -> np.ndarray:
+        return table[name].is_null().to_numpy(zero_copy_only=False)
+
+    def vector_broken(name: str, positive: bool = False) -> np.ndarray:
+        column = table[name].combine_chunks()
+        flat = pc.list_flatten(column)
+        good = pc.is_finite(flat).to_numpy(zero_copy_only=False)
+        if positive:
+            good &= flat.to_numpy(zero_copy_only=False) > 0
+        bad = np.zeros(len(column), dtype=bool)
+        bad[pc.list_parent_indices(column).to_numpy()[~good]] = True
+        return bad | missing(name)
+
+    score = values("score").astype(np.float64)
+    has_box = ~values("dismissed").astype(bool) & ~missing("dismissed")
+    return [
+        ("kind", ~np.isin(values("kind"), BOX_KINDS), " or ".join(BOX_KINDS)),
+        ("class", ~np.isin(values("class"), list(LABEL)), "a detection class"),
+        ("detection_a", missing("detection_a"), "a detection id"),
+        ("score", ~(np.isfinite(score) & (score >= 0) & (score <= 1)), "a score in [0, 1]"),
+        ("dismissed", missing("dismissed"), "true or false"),
+        ("translation", has_box & vector_broken("translation"), "3 finite numbers for a box"),
+        ("size", has_box & vector_broken("size", positive=True), "3 positive numbers for a box"),
+        ("yaw", has_box & ~np.isfinite(values("yaw").astype(np.float64)), "a finite number for a box"),
+    ]
 
 
 def read_boxes(paths: list[Path], sample_tokens: list[str]) -> AllBoxes:

@@ -223,8 +223,9 @@ def scene_part(resolved: dict[str, Any]) -> dict[str, Any]:
 def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> bool:
     """Make ``out`` this evaluation's folder, or check that it is (under the folder lock).
 
-    A folder with another evaluation's ``eval.json`` is replaced only with ``overwrite``
-    (keeping its scenes when they are this config's), and only when everything in it is
+    A folder with another evaluation's ``eval.json`` is replaced only with ``overwrite``, which
+    also redoes this evaluation's own (keeping the scenes when they are this config's: a damaged
+    table.json is written anew), and only when everything in it is
     something `sianms eval` writes (:func:`_is_eval_entry`: a stale report folder counts); a
     non-empty folder without one is never touched. Returns whether ``out`` already holds this
     evaluation, complete.
@@ -238,12 +239,12 @@ def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> bool:
         if not isinstance(stored.get("config"), dict):
             raise DataFormatError(marker, f"must be an object, got {type(stored.get('config')).__name__}",
                                   field="config")
-        if stored.get("config") != resolved:
-            if not overwrite:
-                differing = sorted(k for k in set(resolved) | set(stored.get("config", {}))
-                                   if resolved.get(k) != stored.get("config", {}).get(k))
-                raise OutputExistsError(f"{out} holds an evaluation with another config (differs in: "
-                                        f"{', '.join(differing)}); pass --overwrite or choose another --out")
+        if stored.get("config") != resolved and not overwrite:
+            differing = sorted(k for k in set(resolved) | set(stored.get("config", {}))
+                               if resolved.get(k) != stored.get("config", {}).get(k))
+            raise OutputExistsError(f"{out} holds an evaluation with another config (differs in: "
+                                    f"{', '.join(differing)}); pass --overwrite or choose another --out")
+        if overwrite:  # another config's evaluation, or this one's redone (a damaged table.json)
             keep_scenes = scene_part(stored.get("config", {})) == scene_part(resolved)
             stale = sorted(entry for entry in entries
                            if entry.name != MARKER and not (keep_scenes and entry.name == SCENES))
@@ -251,6 +252,9 @@ def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> bool:
             if foreign is not None:
                 raise OutputExistsError(f"{out}: not replaced: '{foreign.relative_to(out)}' is not something "
                                         "sianms eval writes; remove it yourself or choose another --out")
+            # Unfinished first: a kill among the deletions leaves an evaluation a rerun resumes,
+            # not one that says "complete" over deleted files.
+            write_json(marker, {**stored, "complete": False})
             for entry in stale:
                 shutil.rmtree(entry) if entry.is_dir() else entry.unlink()
         elif stored.get("complete") is True:  # an edited "yes" is not a finished evaluation: resume it
@@ -258,6 +262,19 @@ def claim_output(out: Path, resolved: dict[str, Any], overwrite: bool) -> bool:
     write_marker(out, resolved, {}, complete=False)  # before the scenes' folder: a folder without it is not eval's
     make_folder(out / SCENES)
     return False
+
+
+FINISH_AGAIN = "rerun with --overwrite, which redoes the finish stage and keeps the scenes"
+
+
+def _finished_table(out: Path) -> dict[str, Any]:
+    """A complete evaluation's table.json; a damaged one, or a missing table.md, is named with what to do."""
+    if not (out / "table.md").is_file():
+        raise DataFormatError(out / "table.md", f"missing from a complete evaluation; {FINISH_AGAIN}")
+    try:
+        return read_json(out / "table.json")
+    except DataFormatError as error:
+        raise DataFormatError(error.path, f"{error.detail}; {FINISH_AGAIN}", token=error.token, field=error.field) from None
 
 
 def _first_foreign(out: Path, entries: list[Path], stored: dict[str, Any]) -> Path | None:
@@ -415,7 +432,7 @@ def run(config: EvalConfig, out: str | Path, *, overwrite: bool = False, progres
     settings = scene_settings(config, cache_config, models.dis_thr)
     with exclusive_lock(out / LOCK, what=str(out), blocking=True):
         if claim_output(out, resolved, overwrite):
-            return EvalResult(out, read_json(out / MARKER), scenes_skipped=names, table=read_json(out / "table.json"))
+            return EvalResult(out, read_json(out / MARKER), scenes_skipped=names, table=_finished_table(out))
     mine = [(token, name) for i, (token, name) in enumerate(scenes) if i % n == k]
     result = EvalResult(out, {})
     todo = [(token, name) for token, name in mine if not scene_path(out, name).is_file()]

@@ -374,3 +374,114 @@ def test_a_hand_edited_fpointnet_checkpoint_is_named_with_its_field(eval_inputs,
     edit(checkpoint)
     with pytest.raises(DataFormatError, match=f"checkpoint.pt: field '{field}': must be"):
         FPointNetPredictor(checkpoint, path)
+
+
+def test_a_kill_while_overwrite_deletes_leaves_an_evaluation_to_resume_not_a_complete_one(tmp_path, monkeypatch):
+    """The deletions had run under the old eval.json saying "complete": killed among them, the
+    folder said complete over deleted files, and a rerun of the old config took it as finished."""
+    from sianms_cli.pipelines import job
+
+    out = stale_evaluation(tmp_path / "eval")
+    deleted = []
+
+    def killed_after_one(path, *args, **kwargs):
+        if deleted:
+            raise KeyboardInterrupt
+        deleted.append(path)
+        Path(path).unlink()
+
+    with monkeypatch.context() as patch:
+        patch.setattr(job.Path, "unlink", killed_after_one)
+        with pytest.raises(KeyboardInterrupt):
+            claim_output(out, NEW_CONFIG, overwrite=True)
+    assert deleted and json.loads((out / "eval.json").read_text())["complete"] is False
+    assert claim_output(out, STALE_CONFIG, overwrite=False) is False  # resumed, not taken as finished
+
+
+def test_overwrite_redoes_a_complete_evaluation_of_the_same_config_keeping_its_scenes(tmp_path):
+    out = stale_evaluation(tmp_path / "eval")
+    assert claim_output(out, STALE_CONFIG, overwrite=False) is True
+    assert claim_output(out, STALE_CONFIG, overwrite=True) is False
+    assert sorted(path.name for path in out.iterdir()) == [".eval.lock", "eval.json", "scenes"]
+    assert (out / "scenes" / "scene-0001.parquet").is_file()
+
+
+@pytest.mark.parametrize("damage, problem", [
+    ("table.json", "invalid JSON at line 1, column 1: Expecting value"),  # truncated to nothing
+    ("table.md", "missing from a complete evaluation"),
+])
+def test_a_damaged_table_of_a_complete_evaluation_is_named_with_what_to_do(eval_inputs, evaluated, tmp_path,
+                                                                           damage, problem):
+    out = tmp_path / "copy"
+    shutil.copytree(evaluated[0], out)
+    if damage == "table.md":
+        (out / damage).unlink()
+    else:
+        (out / damage).write_text("")
+    with pytest.raises(DataFormatError) as raised:
+        run(config_of(eval_inputs, nms_sweep="0.1"), out)
+    assert str(raised.value) == (f"{out / damage}: {problem}; rerun with --overwrite, which redoes the finish stage "
+                                 "and keeps the scenes")
+    again = run(config_of(eval_inputs, nms_sweep="0.1"), out, overwrite=True)
+    assert again.scenes_run == [] and again.manifest["complete"]
+    assert (out / "table.json").read_bytes() == (evaluated[0] / "table.json").read_bytes()
+
+
+def _edited_scene_table(evaluated, tmp_path, edit):
+    path = sorted((evaluated[0] / "scenes").glob("*.parquet"))[0]
+    table = edit(pq.read_table(path))
+    edited = tmp_path / path.name
+    pq.write_table(table, edited)
+    return edited, table
+
+
+def _with_value(name, row, value, kind=None):
+    def edit(table):
+        values = table[name].to_pylist()
+        values[row] = value
+        return table.set_column(table.schema.get_field_index(name), name,
+                                pa.array(values, kind or table.schema.field(name).type))
+    return edit
+
+
+def _first_box(evaluated):
+    path = sorted((evaluated[0] / "scenes").glob("*.parquet"))[0]
+    dismissed = pq.read_table(path)["dismissed"].to_pylist()
+    return dismissed.index(False)
+
+
+@pytest.mark.parametrize("edit, field, problem", [
+    (lambda table: table.drop_columns(["kind"]), "kind", "no such column"),
+    (lambda table: table.set_column(table.schema.get_field_index("yaw"), "yaw", pa.array(
+        [str(value) for value in table["yaw"].to_pylist()])), "yaw", "string where eval writes double"),
+])
+def test_a_scene_table_missing_a_column_is_named_not_read_as_nulls(evaluated, tmp_path, edit, field, problem):
+    """A dropped column had been read as all nulls: eval finished "complete" with no box."""
+    from sianms_cli.pipelines.finish import read_boxes
+
+    edited, _ = _edited_scene_table(evaluated, tmp_path, edit)
+    with pytest.raises(DataFormatError) as raised:
+        read_boxes([edited], [])
+    assert str(raised.value) == (f"{edited}: field '{field}': {problem}; delete it and rerun the same `sianms eval`, "
+                                 "which evaluates its scene again")
+
+
+@pytest.mark.parametrize("field, value, expected", [
+    ("class", "tank", "a detection class"),  # had been a KeyError traceback
+    ("kind", "twice", "single or sianms or oracle"),
+    ("score", float("nan"), "a score in [0, 1]"),  # had been blamed on results_<method>.json, not yet written
+    ("score", None, "a score in [0, 1]"),
+    ("translation", None, "3 finite numbers for a box"),
+    ("translation", [1.0, float("inf"), 2.0], "3 finite numbers for a box"),
+    ("size", [-1.0, -1.0, -1.0], "3 positive numbers for a box"),
+    ("yaw", float("nan"), "a finite number for a box"),
+])
+def test_a_bad_value_in_a_scene_table_is_named_by_file_row_and_field(evaluated, tmp_path, field, value, expected):
+    from sianms_cli.pipelines.finish import read_boxes
+
+    row = _first_box(evaluated)
+    edited, table = _edited_scene_table(evaluated, tmp_path, _with_value(field, row, value))
+    with pytest.raises(DataFormatError) as raised:
+        read_boxes([edited], table["sample_token"].to_pylist())
+    assert str(raised.value) == (f"{edited}: field '{field}': row {row}: expected {expected}; delete it and rerun "
+                                 "the same `sianms eval`, which evaluates its scene again")
