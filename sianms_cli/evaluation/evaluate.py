@@ -34,6 +34,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from sianms_cli.errors import DataFormatError, SianmsError
+from sianms_cli.json_stream import fits_float
 from sianms_cli.evaluation.algo import NELEM, MetricData
 from sianms_cli.evaluation.boxes import DETECTION_NAMES
 from sianms_cli.evaluation.config import PRESETS, DetectionConfig, load_config
@@ -226,7 +227,8 @@ def _metric_data(path: str | Path, field: str, value: Any) -> MetricData:
     for name in MetricData.__dataclass_fields__:
         values = curves.get(name)
         if (not isinstance(values, list) or len(values) != NELEM or not all(
-                item is None or (isinstance(item, (int, float)) and not isinstance(item, bool)) for item in values)):
+                item is None or (isinstance(item, (int, float)) and not isinstance(item, bool)) for item in values)
+                or not fits_float([item for item in values if item is not None])):
             raise DataFormatError(path, f"must be a list of {NELEM} numbers or nulls", field=f"{field}.{name}")
     return MetricData.deserialize(curves)
 

@@ -77,8 +77,9 @@ def parse_methods(text: str, nms_sweep: tuple[float, ...] = ()) -> tuple[str, ..
     out: list[str] = []
     for name in dict.fromkeys(names):
         out.append(name)
-        if name in IOU_METHODS:
-            out += [f"{name}@{t:g}" for t in nms_sweep if t != PAPER_NMS_IOU]
+        if name in IOU_METHODS:  # a method is its label: 0.1 and 0.10 are one, 0.30 is the paper's own
+            labels = dict.fromkeys(f"{t:g}" for t in nms_sweep)
+            out += [f"{name}@{label}" for label in labels if label != f"{PAPER_NMS_IOU:g}"]
     return tuple(out)
 
 

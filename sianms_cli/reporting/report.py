@@ -193,13 +193,11 @@ def read_evaluation(folder: str | Path) -> dict[str, Any]:
         raise DataFormatError(marker_path, f"not a sianms evaluation: expected '{EVAL_KIND}', got "
                                            f"{marker.get('kind')!r}", field="kind")
     if marker.get("complete") is not True:
-        missing = ", ".join(marker.get("missing_scenes") or []) or "none; the finish stage did not end"
+        listed = marker.get("missing_scenes")
+        missing = ", ".join(listed) if _names(listed) and listed else "none; the finish stage did not end"
         raise DataFormatError(marker_path, f"the evaluation is not complete (missing scenes: {missing}); "
                                            "finish it with `sianms eval`", field="complete")
-    config = _object(marker.get("config"), marker_path, "config")
-    for name in COMPARABLE_FIELDS + FINGERPRINT_FIELDS:
-        if name not in config:
-            raise DataFormatError(marker_path, "missing", field=f"config.{name}")
+    config = _check_config(_object(marker.get("config"), marker_path, "config"), marker_path, FINGERPRINT_FIELDS)
     table_path = folder / "table.json"
     table = _check_table(read_json(table_path), table_path)
     metrics_path = folder / f"metrics_{table['methods'][0]}.json"
@@ -229,10 +227,7 @@ def read_baseline(path: str | Path) -> dict[str, Any]:
     if content.get("schema_version") != SCHEMA_VERSION:
         raise DataFormatError(path, f"this sianms reads version {SCHEMA_VERSION}, got "
                                     f"{content.get('schema_version')!r}", field="schema_version")
-    config = _object(content.get("config"), path, "config")
-    for name in COMPARABLE_FIELDS + ("metrics",):
-        if name not in config:
-            raise DataFormatError(path, "missing", field=f"config.{name}")
+    _check_config(_object(content.get("config"), path, "config"), path, ("metrics",))
     _check_table(content, path)
     summary_keys = ("schema", "schema_version", "eval", "config", "fingerprints", *TABLE_FIELDS, "timings")
     for name in summary_keys:
@@ -258,12 +253,38 @@ def _timings(value: Any, path: Path) -> dict:
     return value
 
 
-def _number_or_none(value: Any) -> bool:
-    return value is None or is_finite_number(value)
+CELL_RANGES = {"AP": (0.0, 100.0), "ASE": (0.0, 100.0), "ATE": (0.0, 1000.0), "AOE": (0.0, math.pi)}
+"""What a Table I cell can hold: AP and ASE in %, ATE in metres (no evaluation matches boxes 1 km
+apart), AOE in radians. A value beyond is an edit, and one near float's limit overflowed the spread
+over runs."""
+
+
+def _number_or_none(value: Any, low: float = -math.inf, high: float = math.inf) -> bool:
+    return value is None or (is_finite_number(value) and low <= value <= high)
 
 
 def _count(value: Any) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+CONFIG_TEXTS = ("split", "dataset_sha256", "axis_mode", "cache_sha256", "siamese_sha256", "fpointnet_sha256")
+CONFIG_NAMES = ("split_scenes", "methods", "sianms_classes")
+
+
+def _check_config(config: dict, path: Path, more: tuple[str, ...]) -> dict:
+    """``config`` (eval.json's, or report.json's copy) holds the comparable fields and ``more``, those
+    the reports print or pick runs apart by of the kind eval writes."""
+    for name in COMPARABLE_FIELDS + more:
+        if name not in config:
+            raise DataFormatError(path, "missing", field=f"config.{name}")
+        value = config[name]
+        if name in CONFIG_TEXTS and not isinstance(value, str):
+            raise DataFormatError(path, f"must be a string, got {type(value).__name__}", field=f"config.{name}")
+        if name in CONFIG_NAMES and not _names(value):
+            raise DataFormatError(path, "must be a list of names", field=f"config.{name}")
+        if name == "seed" and not _count(value):
+            raise DataFormatError(path, "must be a whole number >= 0", field="config.seed")
+    return config
 
 
 def _names(value: Any) -> bool:
@@ -296,7 +317,12 @@ def _check_table(table: Any, path: Path) -> dict:
             cell = _nested(regions, region, method, name)
             if not isinstance(cell, dict):
                 raise DataFormatError(path, "missing", field=field)
-            for column in COLUMNS + ("gt", "pred"):
+            for column in COLUMNS:
+                low, high = CELL_RANGES[column]
+                if column not in cell or not _number_or_none(cell[column], low, high):
+                    raise DataFormatError(path, f"must be a number in [{low:g}, {high:g}] or null",
+                                          field=f"{field}.{column}")
+            for column in ("gt", "pred"):
                 if column not in cell or not _number_or_none(cell[column]):
                     raise DataFormatError(path, "must be a number or null", field=f"{field}.{column}")
     for family, method in _object(table["best_nms"], path, "best_nms").items():
@@ -310,8 +336,9 @@ def _check_table(table: Any, path: Path) -> dict:
                                           field=f"duplicates.{method}.{region}.{class_name}")
     for matcher, figures in _object(table["reidentification"], path, "reidentification").items():
         for figure in REID_FIGURES:
-            if not _number_or_none(_object(figures, path, f"reidentification.{matcher}").get(figure, "absent")):
-                raise DataFormatError(path, "must be a number or null", field=f"reidentification.{matcher}.{figure}")
+            if not _number_or_none(_object(figures, path, f"reidentification.{matcher}").get(figure, "absent"), 0, 1):
+                raise DataFormatError(path, "must be a number in [0, 1] or null",
+                                      field=f"reidentification.{matcher}.{figure}")
         for figure in REID_COUNTS:  # shown as they are; an older evaluation may lack some
             if figure in figures and not _count(figures[figure]):
                 raise DataFormatError(path, "must be a whole number >= 0", field=f"reidentification.{matcher}.{figure}")
@@ -367,6 +394,9 @@ def _row(region: str, method: str, metric: str, baseline: float | None, now: flo
 
 
 def _figure(summary: Mapping[str, Any], region: str, method: str, column: str) -> float | None:
+    """A Table I cell of a listed method (the only ones :func:`_check_table` checked), else None."""
+    if method not in summary["methods"]:
+        return None
     return summary["regions"][region].get(method, {}).get(summary["table_class"], {}).get(column)
 
 
@@ -596,6 +626,8 @@ def check_output(out: Path, overwrite: bool) -> None:
     but what a report writes (:func:`foreign_entry`): replacing it deletes every entry."""
     if out.exists() and not out.is_dir():
         raise OutputExistsError(f"{out} exists and is not a folder; choose another --out")
+    if out.is_symlink():  # replacing it would put a folder where the link was and leave the link beside it
+        raise OutputExistsError(f"{out} is a link; give the folder it points to, or another --out")
     if not out.is_dir() or not any(out.iterdir()):
         return
     if not is_report_folder(out):
@@ -645,6 +677,9 @@ def run(config: ReportConfig, out: str | Path | None = None, *, overwrite: bool 
     comparison = None
     if config.baseline is not None:
         baseline = read_baseline(config.baseline)
+        if baseline["table_class"] != summary["table_class"]:  # not a config difference --force may pass over
+            raise DataFormatError(config.baseline, f"Table I of {baseline['table_class']!r} where {eval_folder}'s is of "
+                                                   f"{summary['table_class']!r}: no cell compares", field="table_class")
         differing = config_differences(summary, baseline)
         if differing and not config.force:
             raise SianmsError(f"--baseline: {config.baseline} was evaluated with another config (differs in: "

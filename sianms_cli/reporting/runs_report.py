@@ -95,6 +95,8 @@ def read_runs(sources: Sequence[str]) -> list[dict[str, Any]]:
     first = runs[0]
     for source, run in zip(sources[1:], runs[1:]):
         differing = [name for name in SHARED_FIELDS if run["config"].get(name) != first["config"].get(name)]
+        if run["methods"] != first["methods"] and "methods" not in differing:  # table.json's own list
+            differing.append("the methods of table.json")
         if differing:
             raise SianmsError(f"EVAL: {source} was evaluated otherwise than {sources[0]} (differs in: "
                               f"{', '.join(differing)}); a spread is taken over runs evaluated alike")

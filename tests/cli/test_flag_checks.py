@@ -133,3 +133,10 @@ def test_threads_past_the_bound_are_one_error_line_before_torch_or_anything_else
     assert result.stderr.startswith("error: --threads must be at most ") and result.stderr.count("\n") == 1
     assert result.stderr.endswith("got 10000000000\n")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_nms_sweep_threshold_given_twice_is_one_method():
+    # "0.1,0.10" had made axis-nms@0.1 and rotated-nms@0.1 twice each, scored and shown twice.
+    methods = CONFIGS["eval"](methods="vanilla,axis-nms,rotated-nms", nms_sweep="0.1,0.10,0.30,0.05").method_names
+    assert methods == ("vanilla", "axis-nms", "axis-nms@0.1", "axis-nms@0.05",
+                       "rotated-nms", "rotated-nms@0.1", "rotated-nms@0.05")

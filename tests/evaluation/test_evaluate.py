@@ -168,6 +168,12 @@ def test_details_that_are_malformed_name_the_field(tmp_path):
     bad.write_text(json.dumps({"all": {"car:2.0": {"recall": [0.0] * 101}}}))
     with pytest.raises(DataFormatError, match=r"details.json: field 'all.car:2.0.precision': must be a list of 101"):
         read_details(bad)
+    curves = {name: [0.5] * 101 for name in ("recall", "precision", "confidence", "trans_err", "vel_err",
+                                             "scale_err", "orient_err", "attr_err")}
+    curves["recall"][50] = 10**400  # no float holds it: an OverflowError traceback in `sianms report`
+    bad.write_text(json.dumps({"all": {"car:2.0": curves}}))
+    with pytest.raises(DataFormatError, match=r"details.json: field 'all.car:2.0.recall': must be a list of 101"):
+        read_details(bad)
 
 
 def test_run_refuses_the_output_before_any_work(reference_folder, tmp_path):

@@ -13,7 +13,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-from report_helpers import METHODS, PNG, cell, edit_table, make_eval, parse_html
+from report_helpers import CONFIG, METHODS, PNG, cell, edit_table, make_eval, parse_html
 
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
 from sianms_cli.reporting.eval_table import PAPER_TABLE_I, format_cell, format_ratio
@@ -102,6 +102,20 @@ def test_without_details_the_report_says_so(evaluation):
     (lambda folder: _edit_marker(folder, timings={"scenes_s": "slow"}),
      "eval.json: field 'timings.scenes_s': must be a number of seconds"),
     (lambda folder: (folder / "metrics_vanilla.json").write_text("{}"), "metrics_vanilla.json: field 'cfg': must be"),
+    # A traceback before each of these: a list of numbers, a number, null, a huge or a negative cell.
+    (lambda folder: _edit_marker(folder, complete=False, missing_scenes=[1]),
+     "eval.json: field 'complete': the evaluation is not complete (missing scenes: none; the finish stage"),
+    (lambda folder: _edit_marker(folder, complete=False, missing_scenes=5), "(missing scenes: none;"),
+    (lambda folder: _edit_marker(folder, config={**CONFIG, "dataset_sha256": None}),
+     "eval.json: field 'config.dataset_sha256': must be a string, got NoneType"),
+    (lambda folder: _edit_marker(folder, config={**CONFIG, "seed": "one"}),
+     "eval.json: field 'config.seed': must be a whole number >= 0"),
+    (lambda folder: edit_table(folder, lambda t: t["regions"]["all"]["vanilla"]["car"].update(AP=1e308)),
+     "table.json: field 'regions.all.vanilla.car.AP': must be a number in [0, 100] or null"),
+    (lambda folder: edit_table(folder, lambda t: t["regions"]["overlap"]["oracle"]["car"].update(AOE=-1)),
+     "table.json: field 'regions.overlap.oracle.car.AOE': must be a number in [0, 3.14159] or null"),
+    (lambda folder: edit_table(folder, lambda t: t["reidentification"]["sianms"].update(recall=7)),
+     "table.json: field 'reidentification.sianms.recall': must be a number in [0, 1] or null"),
 ])
 def test_an_incomplete_or_foreign_evaluation_is_refused(evaluation, damage, field):
     damage(evaluation)
@@ -275,3 +289,35 @@ def test_outputs_follow_the_umask(evaluation, umask, mask, file_mode, folder_mod
     assert os.stat(report.out).st_mode & 0o777 == folder_mode
     assert {path.name: os.stat(path).st_mode & 0o777 for path in report.out.iterdir()} == dict.fromkeys(
         ["report.json", "report.md", "report.html"], file_mode)
+
+
+def test_a_baseline_reads_only_the_methods_it_lists(evaluation, tmp_path):
+    """A baseline's cells of a method it does not list had been read unchecked: a string there ended in a
+    TypeError traceback. They are not its figures: the current run's method counts as new."""
+    baseline = make_eval(tmp_path / "baseline", methods=("vanilla", "sianms", "oracle"))
+    edit_table(baseline, lambda t: t["regions"]["all"].update({"axis-nms": {"car": {"AP": "high"}}}))
+    report = run(ReportConfig(eval=str(evaluation), baseline=str(baseline), force=True))
+    rows = [row for row in report.content["comparison"]["cells"] if row["method"] == "axis-nms"]
+    assert rows and all(row["baseline"] is None and not row["regressed"] for row in rows)
+
+
+def test_a_baseline_of_another_table_class_is_refused_even_when_forced(evaluation, tmp_path):
+    """A pedestrian Table I had been compared cell by cell against a car one, as regressions."""
+    baseline = make_eval(tmp_path / "baseline")
+    edit_table(baseline, lambda t: t.update(table_class="pedestrian"))
+    for force in (False, True):
+        with pytest.raises(DataFormatError) as caught:
+            run(ReportConfig(eval=str(evaluation), baseline=str(baseline), force=force))
+        assert str(caught.value) == (f"{baseline}: field 'table_class': Table I of 'pedestrian' where "
+                                     f"{evaluation}'s is of 'car': no cell compares")
+
+
+def test_a_link_to_a_report_is_not_replaced(tmp_path):
+    """--overwrite onto a link had put a real folder where the link was and left the link, renamed, beside it."""
+    evaluation = make_eval(tmp_path / "eval")
+    first = run(ReportConfig(eval=str(evaluation)))
+    link = tmp_path / "latest"
+    link.symlink_to(first.out)
+    with pytest.raises(OutputExistsError, match=f"^{link} is a link; give the folder it points to, or another --out$"):
+        run(ReportConfig(eval=str(evaluation)), link, overwrite=True)
+    assert link.is_symlink() and sorted(path.name for path in tmp_path.iterdir()) == ["eval", "latest"]

@@ -165,3 +165,14 @@ def test_a_difference_that_rounds_to_nothing_has_no_minus_sign():
     stats = {"mean": -0.0004, "sd": 0.0, "ci95": [-0.0004, -0.0004], "n": 3}
     assert _plus_minus(stats, "AOE", signed=True) == "+0.000 ± 0.000"
     assert _plus_minus({**stats, "mean": -0.04}, "AP", signed=True) == "+0.0 ± 0.0"
+
+
+def test_a_run_whose_table_lists_other_methods_than_its_config_is_refused(runs, tmp_path):
+    """Runs were compared by their configs' methods, their rows taken from table.json's: a KeyError."""
+    def drop_oracle(table):
+        table["methods"].remove("oracle")
+        for region in table["regions"].values():
+            region.pop("oracle")
+    edit_table(runs[2], drop_oracle)
+    with pytest.raises(SianmsError, match=r"run2 was evaluated otherwise .*differs in: the methods of table.json"):
+        run(RunsReportConfig(evals=tuple(map(str, runs))), tmp_path / "out")
