@@ -37,7 +37,7 @@ def sample_rigs(db: NuScenesDB, sample_tokens: Sequence[str]) -> tuple[list[Came
     # Sort by (sample, channel, file row); the last row of a (sample, channel) run wins.
     order = np.lexsort((cameras, channels, owners))
     cameras, owners, channels = cameras[order], owners[order], channels[order]
-    last = np.r_[(owners[1:] != owners[:-1]) | (channels[1:] != channels[:-1]), True]
+    last = np.r_[(owners[1:] != owners[:-1]) | (channels[1:] != channels[:-1]), True][:len(owners)]  # none: none
     cameras, owners, channels = cameras[last], owners[last], channels[last]
     calibrations = sample_data.rows("calibrated_sensor_token")[cameras]
     widths = sample_data.column("width")[cameras]

@@ -368,7 +368,7 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
     union_settings = (multiview_settings(config.cache, config.dataroot, config.max_distance) if config.multiview
                       else None)
     folder = RunFolder.open(out, kind="fpointnet", config=plain(asdict(config)), overwrite=overwrite,
-                            resume=resume, may_differ=("epochs", "device", "precision", "dataroot"),
+                            resume=resume, may_differ=("epochs", "device", "precision"),
                             write=rank == 0, inputs=cache_inputs(config.cache, config.val_cache))
     with folder:
         unions, union_counts = None, {}

@@ -455,7 +455,8 @@ class RunFolder:
         """Check ``out`` and return its folder; read its checkpoint when resuming.
 
         - A folder holding a run (:func:`holds_run`) is refused unless ``resume`` (continue it:
-          its config must equal ``config`` except the fields in ``may_differ``) or ``overwrite``
+          its config must equal ``config`` except the fields in ``may_differ`` and the paths of
+          :data:`RECORDED_PATHS`, whose content ``inputs`` checks) or ``overwrite``
           (its run files are deleted once the folder's lock is held; nothing else is touched).
         - ``resume`` with no checkpoint yet starts afresh, when config.json gives the same config.
         - A non-empty folder that holds no run is refused, ``overwrite`` or not: it is someone else's.
@@ -483,8 +484,9 @@ class RunFolder:
                 stored = {"kind": kind, **resumed.config}
             else:  # a run stopped in its first epoch: its config.json says what it was
                 stored = _stored_config(path / CONFIG)
+            # Where the caches lie may differ ("c" and "./c", or moved): their content is checked below.
             differ = sorted(key for key in set(wanted) | set(stored)
-                            if key not in set(may_differ) and wanted.get(key) != stored.get(key))
+                            if key not in {*may_differ, *RECORDED_PATHS} and wanted.get(key) != stored.get(key))
             if differ:
                 raise SianmsError(f"cannot resume {path}: the config differs in {', '.join(differ)} "
                                   "(pass the same options, or --overwrite to start afresh)")

@@ -94,3 +94,24 @@ def test_overlap_bits_as_named_pairs():
                                                               [False, False, False]]
     assert overlap.pairs(["B|C"]).tolist() == [[False], [False], [True]]
     assert overlap.pairs([]).shape == (3, 0)
+
+
+def test_a_dataroot_without_any_camera_key_frame_has_no_overlap(dataroot, tmp_path):
+    """A LiDAR-only (or partly downloaded) dataroot had ended `info`, `prepare`, `metrics` and `eval` in an
+    IndexError: the mask over the cameras' key frames was one long over none."""
+    (tmp_path / VERSION).mkdir()
+    for table in (dataroot / VERSION).glob("*.json"):
+        shutil.copy(table, tmp_path / VERSION / table.name)
+    path = tmp_path / VERSION / "sample_data.json"
+    records = json.loads(path.read_text())
+    for record in records:
+        if "/CAM_" in record["filename"]:
+            record["is_key_frame"] = False
+    path.write_text(json.dumps(records))
+    db = NuScenesDB(tmp_path, VERSION)
+    samples = db.table("sample").tokens.tolist()
+    rigs, rig_of_sample = sample_rigs(db, samples)
+    assert rigs == [] and (rig_of_sample == -1).all()
+    annotations = db.table("sample_annotation")
+    bits = box_overlap_pairs(db, samples, annotations.rows("sample_token"), annotations.column("translation")).bits
+    assert len(bits) == len(annotations) and (bits == 0).all()

@@ -74,21 +74,22 @@ def test_a_run_failing_after_a_checkpoint_or_interrupted_keeps_its_folder(tmp_pa
 def test_resuming_a_run_without_checkpoint_compares_its_config_json(tmp_path):
     out = tmp_path / "run"
     with pytest.raises(KeyboardInterrupt):
-        with RunFolder.open(out, kind="siamese", config={"cache": "a", "epochs": 2}):
+        with RunFolder.open(out, kind="siamese", config={"cache": "a", "epochs": 2, "lr": 0.1}):
             raise KeyboardInterrupt  # stopped in its first epoch: config.json, no checkpoint
     with pytest.raises(SianmsError) as error:
-        RunFolder.open(out, kind="siamese", config={"cache": "b", "epochs": 2}, resume=True)
-    assert str(error.value) == (f"cannot resume {out}: the config differs in cache (pass the same options, "
+        RunFolder.open(out, kind="siamese", config={"cache": "a", "epochs": 2, "lr": 0.2}, resume=True)
+    assert str(error.value) == (f"cannot resume {out}: the config differs in lr (pass the same options, "
                                 "or --overwrite to start afresh)")
     with pytest.raises(SianmsError, match="differs in kind"):
-        RunFolder.open(out, kind="fpointnet", config={"cache": "a", "epochs": 2}, resume=True)
-    resumed = RunFolder.open(out, kind="siamese", config={"cache": "a", "epochs": 5}, resume=True,
+        RunFolder.open(out, kind="fpointnet", config={"cache": "a", "epochs": 2, "lr": 0.1}, resume=True)
+    # The cache spelled otherwise ("./a", or moved): its content, not its path, is the run's input.
+    resumed = RunFolder.open(out, kind="siamese", config={"cache": "./a", "epochs": 5, "lr": 0.1}, resume=True,
                              may_differ=("epochs",))
     assert resumed.resumed is None  # nothing to resume: starts afresh, in the same run
     with pytest.raises(SianmsError):
         with resumed:
             raise SianmsError("bad data")
-    assert json.loads((out / CONFIG).read_text()) == {"kind": "siamese", "cache": "a", "epochs": 5}
+    assert json.loads((out / CONFIG).read_text()) == {"kind": "siamese", "cache": "./a", "epochs": 5, "lr": 0.1}
 
 
 # --------------------------------------------------------------------------- the commands
@@ -163,3 +164,20 @@ def test_a_wrong_multiview_dataroot_leaves_no_run_folder(tiny_caches, tmp_path):
     assert done.exit_code == 2 and done.stderr.strip().splitlines() == [
         f"error: {tmp_path / 'nope' / 'v1.0-mini'}: version folder not found (expected <dataroot>/<version>/)"]
     assert not out.exists()
+
+
+def test_a_run_resumes_on_its_cache_spelled_otherwise_but_not_on_other_content(tiny_caches, tmp_path, monkeypatch):
+    """`train fpointnet` recorded --cache as typed: the same cache as a relative and an absolute path
+    had been "the config differs in cache"."""
+    shutil.copytree(tiny_caches[0], tmp_path / "cache")
+    monkeypatch.chdir(tmp_path)
+    first = invoke("fpointnet", "--cache", "cache", "--out", "run", *FPOINTNET)
+    assert first.exit_code == 0, first.output
+    again = invoke("fpointnet", "--cache", str(tmp_path / "cache"), "--out", "run", "--resume",
+                   *FPOINTNET[:-3], "--epochs", "2", "--quiet")
+    assert again.exit_code == 0, again.output
+    shutil.rmtree(tmp_path / "cache")
+    shutil.copytree(tiny_caches[1], tmp_path / "cache")  # other content at the same path
+    other = invoke("fpointnet", "--cache", "cache", "--out", "run", "--resume", *FPOINTNET[:-3], "--epochs", "3",
+                   "--quiet")
+    assert other.exit_code == 2 and "the content of --cache changed since the run began" in other.output
