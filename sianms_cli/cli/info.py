@@ -9,7 +9,6 @@ from typing import Optional
 import typer
 
 from sianms_cli.cli._app import ProgressBar, command
-from sianms_cli.errors import SianmsError
 
 
 @command("info")
@@ -35,22 +34,11 @@ def info_cli(
     and heading-to-axis histograms; and how much of the ego's driving goes straight. Each
     figure prints beside its nuScenes value and source.
     """
-    from sianms_cli.io import check_outside_dataroot, check_writable_output
-    from sianms_cli.reporting.contact_sheet import write_contact_sheet
     from sianms_cli.reporting.dataset_summary import InfoConfig, format_summary, run
 
-    if contact_sheet is not None:
-        check_outside_dataroot(contact_sheet, dataroot, "--contact-sheet", "info")
-        if out is not None and contact_sheet.resolve() == Path(out).resolve():
-            raise SianmsError(f"--contact-sheet: {contact_sheet} is also --out; give each its own file")
-        check_writable_output(contact_sheet, overwrite=overwrite)
     config = InfoConfig(dataroot=str(dataroot), version=version, max_sweeps=max_sweeps)
     with ProgressBar(quiet) as bar:
-        summary = run(config, out, overwrite=overwrite, progress=bar)
-    if contact_sheet is not None:
-        rows = write_contact_sheet(dataroot, version, contact_sheet, overwrite=overwrite)
-        summary["contact_sheet"] = {"path": str(contact_sheet),
-                                    "rows": [{"condition": r.condition, "scene": r.scene_name} for r in rows]}
+        summary = run(config, out, contact_sheet=contact_sheet, overwrite=overwrite, progress=bar)
     if as_json:
         typer.echo(json.dumps(summary, indent=2))
         return

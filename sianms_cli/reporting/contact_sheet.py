@@ -122,6 +122,22 @@ def render_contact_sheet(db: NuScenesDB, rows: list[SheetRow], tile_width: int =
     return sheet
 
 
+def sheet_format(out_path: str | Path) -> str:
+    """Pillow's format for a contact sheet file name; SianmsError for another suffix."""
+    image_format = FORMATS.get(Path(out_path).suffix.lower())
+    if image_format is None:
+        raise SianmsError(f"cannot write a contact sheet to {out_path}: use a {', '.join(FORMATS)} file name")
+    return image_format
+
+
+def save_contact_sheet(sheet: Image.Image, out_path: str | Path) -> None:
+    """Write a drawn sheet to ``out_path`` (.png, or .jpg/.jpeg at quality 90), atomically."""
+    image_format = sheet_format(out_path)
+    options = {"quality": 90} if image_format == "JPEG" else {}
+    with atomic_file(Path(out_path)) as stream:
+        sheet.save(stream, format=image_format, **options)
+
+
 def write_contact_sheet(dataroot: str | Path, version: str, out_path: str | Path, *, tile_width: int = TILE_WIDTH,
                         overwrite: bool = False, db: NuScenesDB | None = None) -> list[SheetRow]:
     """Write the contact sheet of a dataset to ``out_path`` (.png, or .jpg/.jpeg at quality 90).
@@ -141,15 +157,9 @@ def write_contact_sheet(dataroot: str | Path, version: str, out_path: str | Path
         DataFormatError (naming the file, record and field) for a bad table or a missing or
         undecodable image; OutputExistsError / OutputError for the output.
     """
-    out_path = Path(out_path)
-    image_format = FORMATS.get(out_path.suffix.lower())
-    if image_format is None:
-        raise SianmsError(f"cannot write a contact sheet to {out_path}: use a {', '.join(FORMATS)} file name")
-    check_writable_output(out_path, overwrite=overwrite)
+    sheet_format(out_path)
+    check_writable_output(Path(out_path), overwrite=overwrite)
     db = NuScenesDB(dataroot, version) if db is None else db
     rows = pick_rows(db)
-    sheet = render_contact_sheet(db, rows, tile_width)
-    options = {"quality": 90} if image_format == "JPEG" else {}
-    with atomic_file(out_path) as stream:
-        sheet.save(stream, format=image_format, **options)
+    save_contact_sheet(render_contact_sheet(db, rows, tile_width), out_path)
     return rows

@@ -65,15 +65,37 @@ class InfoConfig:
             raise SianmsError(f"--max-sweeps must be >= 0 (0 skips the figure), got {self.max_sweeps}")
 
 
-def run(config: InfoConfig, out: str | Path | None = None, *, overwrite: bool = False,
-        progress: Progress = SILENT) -> dict:
-    """The summary of ``config``'s dataset; also written as JSON to ``out`` when given."""
-    if out is not None:
-        check_outside_dataroot(out, config.dataroot, "--out", "info")
-        check_writable_output(out, overwrite=overwrite)
-    summary = summarize(NuScenesDB(config.dataroot, config.version), config.max_sweeps, progress)
+def run(config: InfoConfig, out: str | Path | None = None, *, contact_sheet: str | Path | None = None,
+        overwrite: bool = False, progress: Progress = SILENT) -> dict:
+    """The summary of ``config``'s dataset; also written as JSON to ``out``, and the dataset's contact
+    sheet drawn into ``contact_sheet`` (:mod:`.contact_sheet`; its rows in the summary), when given.
+
+    Both outputs are checked before any work and written once both are made: a bad picture name
+    or an image that does not decode leaves neither.
+    """
+    if contact_sheet is not None and out is not None and Path(contact_sheet).resolve() == Path(out).resolve():
+        raise SianmsError(f"--contact-sheet: {contact_sheet} is also --out; give each its own file")
+    for path, flag in ((out, "--out"), (contact_sheet, "--contact-sheet")):
+        if path is not None:
+            check_outside_dataroot(path, config.dataroot, flag, "info")
+            check_writable_output(path, overwrite=overwrite)
+    if contact_sheet is not None:
+        from sianms_cli.reporting.contact_sheet import sheet_format
+
+        sheet_format(contact_sheet)
+    db = NuScenesDB(config.dataroot, config.version)
+    summary = summarize(db, config.max_sweeps, progress)
+    if contact_sheet is not None:
+        from sianms_cli.reporting.contact_sheet import pick_rows, render_contact_sheet, save_contact_sheet
+
+        rows = pick_rows(db)
+        sheet = render_contact_sheet(db, rows)
+        summary["contact_sheet"] = {"path": str(contact_sheet),
+                                    "rows": [{"condition": row.condition, "scene": row.scene_name} for row in rows]}
     if out is not None:
         write_json(out, summary)
+    if contact_sheet is not None:
+        save_contact_sheet(sheet, contact_sheet)
     return summary
 
 

@@ -1,9 +1,11 @@
 import json
+import shutil
 
 import numpy as np
 import pytest
 
 from sianms_cli.geometry.quaternion import yaw_to_quat
+from sianms_cli.errors import DataFormatError, SianmsError
 from sianms_cli.io import OutputError
 from sianms_cli.nuscenes.classes import CATEGORY_TO_DETECTION, DETECTION_CLASSES
 from sianms_cli.nuscenes.loader import NuScenesDB
@@ -177,3 +179,21 @@ def test_run_names_a_file_where_the_out_folder_should_be(tiny_dataroot, tmp_path
     with pytest.raises(OutputError) as caught:
         run(InfoConfig(str(tiny_dataroot), max_sweeps=0), tmp_path / "t.sh" / "x.json")
     assert str(caught.value) == f"cannot write {tmp_path}/t.sh: not a folder"
+
+
+def test_a_contact_sheet_that_cannot_be_drawn_leaves_no_out_either(tiny_dataroot, tmp_path):
+    """--out had been written before --contact-sheet's name was checked or its images read: a rerun
+    with the cause mended was then refused ("exists; pass --overwrite")."""
+    with pytest.raises(SianmsError, match="use a .png, .jpg, .jpeg file name"):
+        run(InfoConfig(str(tiny_dataroot), max_sweeps=0), tmp_path / "info.json", contact_sheet=tmp_path / "sheet.gif")
+    assert list(tmp_path.iterdir()) == []
+    data = shutil.copytree(tiny_dataroot, tmp_path / "data")
+    for image in (data / "samples" / "CAM_FRONT").glob("*.jpg"):
+        image.write_bytes(b"not a jpeg")
+    with pytest.raises(DataFormatError):
+        run(InfoConfig(str(data), max_sweeps=0), tmp_path / "info.json", contact_sheet=tmp_path / "sheet.png")
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["data"]
+    summary = run(InfoConfig(str(tiny_dataroot), max_sweeps=0), tmp_path / "info.json",
+                  contact_sheet=tmp_path / "sheet.png")
+    assert json.loads((tmp_path / "info.json").read_text())["contact_sheet"] == summary["contact_sheet"]
+    assert summary["contact_sheet"]["path"] == str(tmp_path / "sheet.png") and (tmp_path / "sheet.png").is_file()
