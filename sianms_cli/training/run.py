@@ -511,6 +511,10 @@ class RunFolder:
             self._lock = lock
             try:
                 if self.replace:  # only now: a run still writing here holds the lock, and keeps its files
+                    folder = next((self.path / name for name in RUN_FILES if (self.path / name).is_dir()), None)
+                    if folder is not None:  # checked before any deletion: the run's files stay as they were
+                        raise OutputExistsError(f"{folder} is a folder where the run writes a file; remove it "
+                                                "yourself or choose another --out")
                     for name in RUN_FILES:
                         (self.path / name).unlink(missing_ok=True)
                     self._found -= set(RUN_FILES)

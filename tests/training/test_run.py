@@ -390,3 +390,20 @@ def test_leaving_the_process_group_frees_the_ddp_wrappers_that_hold_it_first(tmp
     finally:
         gc.enable()
     assert seen == [True] and not dist.is_initialized()
+
+
+def test_overwrite_with_a_folder_in_a_run_files_place_deletes_nothing(tmp_path):
+    """A folder named config.json was found only by the deletions: checkpoint.pt had gone before the error."""
+    out = tmp_path / "run"
+    config = {"dim": 2}
+    with RunFolder.open(out, kind="siamese", config=config) as run:
+        _, checkpoint = small_checkpoint()
+        checkpoint.config = config
+        run.save(checkpoint, curves=False)
+    (out / METRICS).unlink()
+    (out / METRICS).mkdir()
+    before = sorted(p.name for p in out.iterdir())
+    with pytest.raises(OutputExistsError, match=f"^{out / METRICS} is a folder where the run writes a file; remove"):
+        with RunFolder.open(out, kind="siamese", config=config, overwrite=True):
+            pass
+    assert sorted(p.name for p in out.iterdir()) == before and (out / CHECKPOINT).is_file()
