@@ -286,6 +286,13 @@ def load_checkpoint(path: str | Path, kind: str | None = None) -> Checkpoint:
         if not isinstance(row, dict):
             raise DataFormatError(path, f"expected an object per epoch, got {type(row).__name__}",
                                   field=f"history[{i}]")
+        if row.get("epoch") != i + 1 or type(row["epoch"]) is not int:  # metrics.csv and the curves go by it
+            raise DataFormatError(path, f"expected {i + 1}, got {row.get('epoch')!r}", field=f"history[{i}].epoch")
+        for name, value in row.items():  # every figure a training writes is a number, or null where none
+            if not (value is None or isinstance(value, int) and not isinstance(value, bool)
+                    or isinstance(value, float)):
+                raise DataFormatError(path, f"expected a number or null, got {type(value).__name__}",
+                                      field=f"history[{i}].{name}")
     del data["format"]
     return Checkpoint(**data)
 

@@ -64,6 +64,7 @@ from sianms_cli.data.siamese import PairingBatch, Scene, cache_feature_shape, ep
     hardest_candidates, iter_scenes, shard_paths
 from sianms_cli.data.streams import check_stream_count, check_streams, rank_epoch_streams, stream_steps
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_epochs, check_seed
+from sianms_cli.json_stream import is_finite_number
 from sianms_cli.io import make_folder, partial_of, read_json, write_json, write_text
 from sianms_cli.models.losses import double_margin_loss, pair_distances, positive_terms
 from sianms_cli.models.siamese import SiameseEncoder, parameter_count
@@ -430,6 +431,9 @@ def run(config: SiameseConfig, out: str | Path, *, overwrite: bool = False, resu
         dis_thr = (config.alpha + config.beta) / 2
         if history and "val_dis_thr" in history[-1]:
             dis_thr = history[-1]["val_dis_thr"]
+            if not is_finite_number(dis_thr):  # validation always chooses one: an edit
+                raise DataFormatError(folder.checkpoint_path, f"expected a finite number, got {dis_thr!r}",
+                                      field=f"history[{len(history) - 1}].val_dis_thr")
         progress.start(max(0, config.epochs - start), "epoch", "train siamese")
         epochs_run = []
         for epoch in range(start, config.epochs):

@@ -94,6 +94,12 @@ def test_foreign_keys_and_kinds_are_refused(tmp_path):
     ("epoch", -3, "field 'epoch': expected an epoch count >= 0, got -3"),
     ("history", None, "field 'history': expected a list, got NoneType"),
     ("history", [1], r"field 'history\[0\]': expected an object per epoch, got int"),
+    # metrics.csv, curves.png and the command's summary line read each row's figures as numbers
+    ("history", [{"epoch": 1, "loss": 0.5}, {"loss": 0.4}], r"field 'history\[1\].epoch': expected 2, got None"),
+    ("history", [{"epoch": 1, "loss": 0.5}, {"epoch": 2, "val_dis_thr": "x"}],
+     r"field 'history\[1\].val_dis_thr': expected a number or null, got str"),
+    ("history", [{"epoch": 1, "loss": True}, {"epoch": 2}],
+     r"field 'history\[0\].loss': expected a number or null, got bool"),
     ("optimizer", [], "field 'optimizer': expected an object, got list"),
     ("model", {"weight": 5}, "field 'model.weight': expected a tensor, got int"),
     ("kind", 3, "field 'kind': expected a string, got int"),
