@@ -38,7 +38,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from sianms_cli.data.schemas import DATASETS, SCHEMA_VERSION
+from sianms_cli.data.schemas import DATASETS, SCHEMA_VERSION, cache_schemas
 from sianms_cli.errors import DataFormatError
 from sianms_cli.io import PARTIAL_SUFFIX, AtomicFile, os_errors_as_output_errors, read_json, sha256_of, write_json
 
@@ -300,9 +300,45 @@ def reading_shard(path: Path, remedy: str = PREPARE_AGAIN) -> Iterator[None]:
 
 
 def read_shard_table(path: Path, columns: list[str] | None = None, filters: list | None = None) -> pa.Table:
-    """``pq.read_table`` of one cache shard file; a damaged file raises DataFormatError naming it."""
+    """``pq.read_table`` of one cache shard file; a damaged file, or a column of a detections,
+    frustums or pairs shard missing or of another type than prepare writes, raises
+    DataFormatError naming it (an edited column had ended in a traceback in training)."""
     with reading_shard(path):
+        schema = pq.read_schema(path)
+        _check_columns(path, schema, columns or schema.names)
         return pq.read_table(path, columns=columns, filters=filters)
+
+
+def _check_columns(path: Path, schema: pa.Schema, columns: list[str]) -> None:
+    expected = COLUMN_TYPES.get(Path(path).parent.name, {})
+    for name in columns:
+        index = schema.get_field_index(name)
+        if index < 0:
+            raise DataFormatError(path, f"no such column; {PREPARE_AGAIN}", field=name)
+        kind = schema.field(index).type
+        wanted = expected.get(name)
+        if wanted is not None and _kind(kind) != _kind(wanted):
+            raise DataFormatError(path, f"{kind} where prepare writes {wanted}; {PREPARE_AGAIN}", field=name)
+
+
+def _kind(data_type: pa.DataType) -> str:
+    """What readers rely on of a column's type: a number (of any width), text, a list of a kind, bytes
+    (``roi_feature``'s width is the feature shape's, checked where it is decoded)."""
+    if pa.types.is_integer(data_type) or pa.types.is_floating(data_type):
+        return "number"
+    if pa.types.is_string(data_type) or pa.types.is_large_string(data_type):
+        return "text"
+    if pa.types.is_binary(data_type) or pa.types.is_large_binary(data_type) or \
+            pa.types.is_fixed_size_binary(data_type):
+        return "bytes"
+    if pa.types.is_list(data_type) or pa.types.is_large_list(data_type) or pa.types.is_fixed_size_list(data_type):
+        return f"list of {_kind(data_type.value_type)}"
+    return str(data_type)
+
+
+COLUMN_TYPES = {dataset: {field.name: field.type for field in schema}
+                for dataset, schema in cache_schemas((1, 1, 1), "").items()}
+"""The type of each column prepare writes, by dataset folder."""
 
 
 def require_finite(path: Path, table: pa.Table, columns: list[str]) -> None:
@@ -367,7 +403,12 @@ def decode_roi_features(column: pa.ChunkedArray | pa.Array | list[bytes], shape:
         raise DataFormatError(path, f"row {wrong[0]}: a feature of {got} where the shape "
                                     f"{','.join(map(str, shape))} in float16 takes {expected:,} bytes; {PREPARE_AGAIN}",
                               field="roi_feature")
-    return _values_end_to_end(column, expected).view("<f2").reshape(len(column), *shape)
+    features = _values_end_to_end(column, expected).view("<f2").reshape(len(column), *shape)
+    broken = np.flatnonzero(~np.isfinite(features).reshape(len(features), -1).all(axis=1))
+    if len(broken):  # prepare never writes one: a NaN would train on, or fail the validation's ROC
+        raise DataFormatError(path, f"row {broken[0]}: a feature holding NaN or infinity; {PREPARE_AGAIN}",
+                              field="roi_feature")
+    return features
 
 
 def _values_end_to_end(column: pa.ChunkedArray | pa.Array, width: int) -> np.ndarray:

@@ -48,9 +48,10 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from sianms_cli.data.cache import read_shard_table, require_finite
+from sianms_cli.data.cache import PREPARE_AGAIN, read_shard_table, require_finite
 from sianms_cli.errors import DataFormatError
 from sianms_cli.nuscenes.classes import PAPER_CLASSES
+from sianms_cli.nuscenes.loader import MAX_BOX_SIZE
 
 INTENSITY_SCALE = 255.0
 FRUSTUM_COLUMNS = ["detection_id", "class", "score", "source", "rot_angle", "x", "y", "z", "intensity", "label",
@@ -143,6 +144,7 @@ def read_shard(path: Path, selection: FrustumSelection) -> ShardFrustums:
     """The kept frustums of one shard file (module docstring), converted to F-PointNets' conventions."""
     table = read_shard_table(path, columns=FRUSTUM_COLUMNS)
     require_finite(path, table, NUMERIC_FRUSTUM_COLUMNS)
+    require_frustum_shapes(path, table)
     if selection.min_box_height > 0:
         table = table.filter(pa.array(_box_heights(path, table["detection_id"]) >= selection.min_box_height))
     return frustums_of_table(table, selection)
@@ -155,6 +157,34 @@ def read_union_shard(path: Path, selection: FrustumSelection) -> ShardFrustums:
     the same class, box and object-point filters apply again here. Rows are flagged ``union``.
     """
     return frustums_of_table(pq.read_table(path, columns=FRUSTUM_COLUMNS), selection, union=True)
+
+
+def require_frustum_shapes(path: Path, table: pa.Table) -> None:
+    """Raise DataFormatError naming the first record (``detection_id``) and field of a frustums table
+    that breaks what prepare writes: a point list of another length than ``x``'s, a label other than
+    0 or 1, a box centre or size without its 3 values, a size not in (0, MAX_BOX_SIZE] m. An edited
+    cache had ended in a traceback deep in training, or a size of 1e30 as "training diverged"."""
+    def fail(rows: np.ndarray, field: str, problem: str) -> None:
+        if len(rows):
+            raise DataFormatError(path, f"{problem}; {PREPARE_AGAIN}", token=str(table["detection_id"][int(rows[0])]),
+                                  field=field)
+
+    def lengths(name: str) -> np.ndarray:
+        return pc.list_value_length(table[name]).fill_null(-1).to_numpy(zero_copy_only=False)
+
+    points = lengths("x")
+    for name in ("y", "z", "intensity", "label"):
+        fail(np.flatnonzero(lengths(name) != points), name, "not one value per point of x")
+    labels = table["label"].combine_chunks()
+    wrong = ~np.isin(pc.list_flatten(labels).to_numpy(zero_copy_only=False), (0, 1))
+    fail(pc.list_parent_indices(labels).to_numpy()[wrong], "label", "expected 0 or 1 per point")
+    has_box = table["box_center_frustum"].is_valid().to_numpy(zero_copy_only=False)
+    for name in ("box_center_frustum", "box_size"):
+        fail(np.flatnonzero(has_box & (lengths(name) != 3)), name, "expected 3 values for the box")
+    sizes = table["box_size"].combine_chunks()
+    bad = pc.list_flatten(sizes).to_numpy(zero_copy_only=False)
+    bad = (bad <= 0) | (bad > MAX_BOX_SIZE)
+    fail(pc.list_parent_indices(sizes).to_numpy()[bad], "box_size", f"expected sizes in (0, {MAX_BOX_SIZE:g}] m")
 
 
 def frustums_of_table(table: pa.Table, selection: FrustumSelection, union: bool = False) -> ShardFrustums:

@@ -117,6 +117,9 @@ def _scene_from_tables(detections: pa.Table, pairs: pa.Table, shape: tuple[int, 
     ids = detections.column("detection_id").combine_chunks()
     instance, tokens = _codes(detections.column("instance_token"))
     sample, _ = _codes(detections.column("sample_token"))
+    if pairs.column("pair").null_count:
+        raise DataFormatError(path.parent.parent / "pairs" / path.name, "a pairs row without its camera pair",
+                              field="pair")
     pair_names = pairs.column("pair").to_numpy(zero_copy_only=False).astype(object)
     names = sorted(set(pc.unique(pc.list_flatten(detections.column("overlap_pairs"))).to_pylist()) | set(pair_names))
     fields = ("reference_detection_id", "positive_detection_id")

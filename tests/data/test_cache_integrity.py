@@ -206,3 +206,40 @@ def test_a_damaged_scene_table_of_an_evaluation_is_named_with_what_to_do(tmp_pat
         read_boxes([table], ["token"])
     assert str(raised.value) == (f"{table}: not a readable Parquet file; delete it and rerun the same `sianms eval`, "
                                  "which evaluates its scene again")
+
+
+def _rewrite(path, edit):
+    table = pq.read_table(path)
+    pq.write_table(edit(table), path)
+
+
+@pytest.mark.parametrize("dataset, edit, field, problem", [
+    ("detections", lambda t: t.set_column(t.schema.get_field_index("overlap_pairs"), "overlap_pairs",
+                                          pa.array(["CAM_FRONT|CAM_FRONT_RIGHT"] * len(t))), "overlap_pairs",
+     "string where prepare writes list<item: string>"),
+    ("detections", lambda t: t.drop_columns(["camera"]), "camera", "no such column"),
+    ("detections", lambda t: t.set_column(t.schema.get_field_index("roi_feature"), "roi_feature",
+                                          pa.array([np.full((1, 2, 2), np.nan, dtype="<f2").tobytes()] * len(t),
+                                                   pa.binary(8))),
+     "roi_feature", "row 0: a feature holding NaN or infinity"),
+])
+def test_an_edited_siamese_column_is_named_by_file_and_field(tmp_path, dataset, edit, field, problem):
+    """A string overlap_pairs had been an ArrowNotImplementedError traceback, a NaN feature a
+    ValueError in the validation's ROC or a "lower --lr" (training diverged)."""
+    write_shard(tmp_path)
+    path = tmp_path / dataset / "s.parquet"
+    _rewrite(path, edit)
+    with pytest.raises(DataFormatError) as error:
+        list(iter_scenes(tmp_path))
+    assert str(error.value) == f"{path}: field '{field}': {problem}; {PREPARE_AGAIN}"
+
+
+def test_a_pairs_row_without_its_pair_is_named(tmp_path):
+    """A null pair had ended in a TypeError while sorting the pair names."""
+    write_shard(tmp_path)
+    path = tmp_path / "pairs" / "s.parquet"
+    row = {name: None for name in cache_schemas((1, 2, 2), "tiny")["pairs"].names}
+    row.update(scene_token="scene", sample_token="sample", reference_detection_id="d", positive_detection_id="d")
+    pq.write_table(pa.Table.from_pylist([row], schema=cache_schemas((1, 2, 2), "tiny")["pairs"]), path)
+    with pytest.raises(DataFormatError, match=f"^{path}: field 'pair': a pairs row without its camera pair$"):
+        list(iter_scenes(tmp_path))

@@ -202,3 +202,29 @@ def test_a_number_that_is_not_finite_names_its_file_record_and_field(tmp_path, f
     path = root / "frustums" / "scene-1.parquet"
     with pytest.raises(DataFormatError, match=rf"^{path}: record bad: field '{field}': not a finite number"):
         read_shard(path, FrustumSelection())
+
+
+@pytest.mark.parametrize("field, edit, problem", [
+    ("x", lambda row: row.update(x=row["x"][:-1]), None),  # then y is the one out of step
+    ("label", lambda row: row.update(label=row["label"][:-1]), "not one value per point of x"),
+    ("label", lambda row: row["label"].__setitem__(0, 5), "expected 0 or 1 per point"),
+    ("label", lambda row: row["label"].__setitem__(0, -1), "expected 0 or 1 per point"),
+    ("box_center_frustum", lambda row: row.update(box_center_frustum=[1.0, 2.0]), "expected 3 values for the box"),
+    ("box_size", lambda row: row.update(box_size=None), "expected 3 values for the box"),
+    ("box_size", lambda row: row.update(box_size=[2.0, 0.0, 1.5]), "expected sizes in (0, 1000] m"),
+    ("box_size", lambda row: row.update(box_size=[2.0, 1e30, 1.5]), "expected sizes in (0, 1000] m"),
+])
+def test_a_frustum_prepare_could_not_have_written_names_its_file_record_and_field(tmp_path, field, edit, problem):
+    """Each had ended in a traceback deep in training (a shape, an index out of bounds), or as
+    "training diverged" (a size of 1e30)."""
+    rng = np.random.default_rng(1)
+    rows = [frustum_row(rng, "ok", "car", (2.0, 5.0, 1.5), 30), frustum_row(rng, "bad", "car", (2.0, 5.0, 1.5), 30)]
+    edit(rows[1][0])
+    root = write_cache(tmp_path / "cache", {"scene-1": rows})
+    path = root / "frustums" / "scene-1.parquet"
+    named = "y" if field == "x" else field
+    message = problem or "not one value per point of x"
+    with pytest.raises(DataFormatError) as raised:
+        read_shard(path, FrustumSelection())
+    assert str(raised.value) == (f"{path}: record bad: field '{named}': {message}; rerun `sianms prepare` on the "
+                                 "cache to rebuild it")
