@@ -13,6 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
+from sianms_cli.errors import DataFormatError
 from sianms_cli.nuscenes.loader import NuScenesDB
 
 
@@ -108,11 +109,27 @@ def sweep_rows(db: NuScenesDB, rows: np.ndarray, sweeps: int) -> np.ndarray:
     Returns:
         (N, sweeps + 1) int64: column 0 is ``rows``, column k the k-th earlier record, -1
         once the chain has ended.
+
+    Raises:
+        DataFormatError naming the record and its ``prev`` when the link goes to another sensor's
+        record or to one not strictly earlier (a loop or a step forwards): stacked, it would
+        read one sweep several times with a lag of 0, or with a negative one.
     """
-    previous = db.table("sample_data").rows("prev")
+    sample_data = db.table("sample_data")
+    previous = sample_data.rows("prev")
+    channels, times = db.sample_data_channels(), sample_data.column("timestamp")
     chain = np.full((len(rows), sweeps + 1), -1, dtype=np.int64)
     chain[:, 0] = rows
     for k in range(sweeps):
         current = chain[:, k]
-        chain[:, k + 1] = np.where(current >= 0, previous[np.maximum(current, 0)], -1)
+        earlier = np.where(current >= 0, previous[np.maximum(current, 0)], -1)
+        here, there = np.maximum(current, 0), np.maximum(earlier, 0)
+        broken = np.flatnonzero((earlier >= 0) & ((channels[there] != channels[here]) | (times[there] >= times[here])))
+        if len(broken):
+            row, link = here[broken[0]], there[broken[0]]
+            problem = (f"a {channels[link]} record, not {channels[row]}'s" if channels[link] != channels[row]
+                       else f"not earlier (timestamp {times[link]}, this record's {times[row]})")
+            raise DataFormatError(sample_data.path, f"prev {sample_data.tokens[link]} is {problem}",
+                                  token=str(sample_data.tokens[row]), field="prev")
+        chain[:, k + 1] = earlier
     return chain

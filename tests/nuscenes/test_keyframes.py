@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from sianms_cli.nuscenes.keyframes import keyframe_rows, sensor_records, sweep_rows
+from sianms_cli.errors import DataFormatError
 from sianms_cli.nuscenes.loader import NuScenesDB
 
 VERSION = "v1.0-mini"
@@ -79,3 +80,25 @@ def test_sweep_rows_follow_the_prev_chain(db):
     # The second sample of the first scene: its key frame, the sweep between, the first key frame.
     assert (chain[1] >= 0).sum() == 3 and not sample_data.column("is_key_frame")[chain[1, 1]]
     assert sweep_rows(db, lidar, 0).tolist() == lidar[:, None].tolist()
+
+
+@pytest.mark.parametrize("link, problem", [
+    ("itself", "not earlier"),  # had stacked one sweep several times, each with a lag of 0
+    ("next", "not earlier"),  # had stacked a later sweep, its lag negative
+    ("camera", "a CAM_FRONT record, not LIDAR_TOP's"),  # had said only "is from CAM_FRONT (camera), not a lidar"
+])
+def test_a_prev_link_that_loops_steps_forwards_or_leaves_the_sensor_is_named(tmp_path, tiny_records, write_dataset,
+                                                                           link, problem):
+    records = copy.deepcopy(tiny_records)
+    lidar = [r for r in records["sample_data"] if r["is_key_frame"] and "LIDAR_TOP" in r["filename"]]
+    edited = lidar[1]
+    target = {"itself": edited["token"], "next": lidar[2]["token"],
+              "camera": next(r["token"] for r in records["sample_data"] if "CAM_FRONT" in r["filename"])}[link]
+    edited["prev"] = target
+    write_dataset(tmp_path / "d", records)
+    db = NuScenesDB(tmp_path / "d", VERSION)
+    rows = keyframe_rows(db, np.arange(len(db.table("sample"))), ["LIDAR_TOP"])[:, 0]
+    with pytest.raises(DataFormatError) as raised:
+        sweep_rows(db, rows, 3)
+    assert str(raised.value).startswith(f"{db.table('sample_data').path}: record {edited['token']}: field 'prev': "
+                                        f"prev {target} is {problem}")
