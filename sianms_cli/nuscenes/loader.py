@@ -20,7 +20,8 @@ Loading validates everything the toolkit relies on and stops at the first proble
 :class:`~sianms_cli.errors.DataFormatError` naming the file, the record token and the field.
 Beyond each field's kind it refuses values no real record holds, which would corrupt what is
 computed from them (:data:`_VALUE_RULES`): a box size of 0 or less, a negative point count, a
-rotation quaternion that is zero or too large or small to normalise. Fields outside the schema
+rotation quaternion that is zero or too large or small to normalise, a coordinate or an
+intrinsic near float's limit. Fields outside the schema
 and optional extra tables (lidarseg, panoptic, image annotations) are ignored.
 """
 
@@ -191,6 +192,22 @@ def _normalisable(column: np.ndarray) -> np.ndarray:
     return (largest >= low) & (largest <= high)
 
 
+MAX_COORDINATE = 1e8
+"""Metres: no map coordinate is larger (the Earth's circumference is 4e7 m; UTM northings reach
+1e7). A value near float64's limit overflows every projection's products."""
+MAX_PIXELS = 1e6
+"""Pixels: no focal length or principal point is larger (a 1600 px nuScenes camera has ~1,266)."""
+
+
+def _coordinates(column: np.ndarray) -> np.ndarray:
+    return (np.abs(column) <= MAX_COORDINATE).all(axis=1)
+
+
+def _pixel_entries(column: np.ndarray) -> np.ndarray:  # NaN: a sensor without one ([])
+    return (np.isnan(column) | (np.abs(column) <= MAX_PIXELS)).all(axis=(1, 2))
+
+
+_TRANSLATION_RULE = _ValueRule(_coordinates, f"3 coordinates within ±{MAX_COORDINATE:g} m")
 _ROTATION_RULE = _ValueRule(
     _normalisable,
     "a quaternion that can be normalised (largest |component| in "
@@ -200,7 +217,11 @@ _COUNT_RULE = _ValueRule(_non_negative, "a count of 0 or more")
 
 _VALUE_RULES: dict[tuple[str, str], _ValueRule] = {
     ("calibrated_sensor", "rotation"): _ROTATION_RULE,
+    ("calibrated_sensor", "translation"): _TRANSLATION_RULE,
+    ("calibrated_sensor", "camera_intrinsic"): _ValueRule(_pixel_entries, f"entries within ±{MAX_PIXELS:g} px"),
     ("ego_pose", "rotation"): _ROTATION_RULE,
+    ("ego_pose", "translation"): _TRANSLATION_RULE,
+    ("sample_annotation", "translation"): _TRANSLATION_RULE,
     ("sample_annotation", "size"): _ValueRule(_box_sizes, f"3 sizes greater than 0 and at most {MAX_BOX_SIZE:,.0f} m"),
     ("sample_annotation", "rotation"): _ROTATION_RULE,
     ("sample_annotation", "num_lidar_pts"): _COUNT_RULE,
@@ -209,8 +230,7 @@ _VALUE_RULES: dict[tuple[str, str], _ValueRule] = {
     ("sample_data", "width"): _ValueRule(_non_negative, "a width of 0 or more pixels (0: not an image)"),
     ("sample_data", "height"): _ValueRule(_non_negative, "a height of 0 or more pixels (0: not an image)"),
 }
-"""(table, field) -> the rule its values follow beyond their kind; translations need none
-beyond being finite, which their kind already requires."""
+"""(table, field) -> the rule its values follow beyond their kind."""
 
 
 def _check_rule(path: Path, records: list, first: int, values: list, field: str,

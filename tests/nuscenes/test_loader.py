@@ -292,6 +292,14 @@ _ROTATION_PROBLEM = ("expected a quaternion that can be normalised "
     ("instance", 0, "nbr_annotations", -3, "expected a count of 0 or more, got -3"),
     ("sample_data", 1, "width", -5, "expected a width of 0 or more pixels (0: not an image), got -5"),
     ("sample_data", 2, "height", -1, "expected a height of 0 or more pixels (0: not an image), got -1"),
+    # numpy had warned of overflow on stderr while projecting these, and gone on
+    ("sample_annotation", 0, "translation", [1e308, 1e308, 0], "expected 3 coordinates within ±1e+08 m, got "
+                                                               "[1e+308, 1e+308, 0]"),
+    ("ego_pose", 0, "translation", [0, -2e8, 0], "expected 3 coordinates within ±1e+08 m, got [0, -200000000.0, 0]"),
+    ("calibrated_sensor", 1, "translation", [1e9, 0, 1.5], "expected 3 coordinates within ±1e+08 m, got "
+                                                           "[1000000000.0, 0, 1.5]"),
+    ("calibrated_sensor", 0, "camera_intrinsic", [[1266.4, 0, 1e308], [0, 1266.4, 491.5], [0, 0, 1]],
+     "expected entries within ±1e+06 px, got [[1266.4, 0, 1e+308], [0, 1266.4, 491.5], [0, 0, 1]]"),
 ])
 def test_values_no_record_can_hold(tiny_dataroot, rewrite_table, tiny_records, table, row, field,
                                    value, problem):
