@@ -59,9 +59,11 @@ def resolve_data_path(
 def read_pcd_bin(path: str | Path, token: str | None = None) -> np.ndarray:
     """Read a LIDAR ``.pcd.bin`` sweep as an (N, 5) float32 array, sensor frame.
 
-    Columns: x, y, z (m), intensity, ring index. A missing file, or a size that is not a whole
-    number of 20-byte points (a truncated file), raises :class:`DataFormatError` naming the
-    file and the sample_data ``token`` when given. An empty file gives shape (0, 5).
+    Columns: x, y, z (m), intensity, ring index. A missing file, an empty one, or a size that is
+    not a whole number of 20-byte points (a truncated file), raises :class:`DataFormatError`
+    naming the file and the sample_data ``token`` when given. nuScenes stores every beam of
+    every column, invalid returns at the origin (nuscenes-devkit #117, #845), so no sweep is
+    empty: an empty file is a download that stopped.
     """
     path = Path(path)
     try:
@@ -72,6 +74,8 @@ def read_pcd_bin(path: str | Path, token: str | None = None) -> np.ndarray:
         raise DataFormatError(
             path, f"cannot read lidar file: {exc.strerror}", token=token
         ) from None
+    if not raw:
+        raise DataFormatError(path, "empty lidar file (0 bytes): a download that stopped?", token=token)
     if len(raw) % _PCD_BIN_POINT_BYTES:
         raise DataFormatError(
             path,

@@ -47,10 +47,13 @@ def test_pcd_bin_round_trip_is_exact_little_endian_float32(tmp_path):
     assert [p.name for p in path.parent.iterdir()] == ["x.pcd.bin"]
 
 
-def test_pcd_bin_empty_file_gives_no_points(tmp_path):
+def test_an_empty_pcd_bin_is_a_data_format_error(tmp_path):
+    """A partial download's 0-byte file had been read as a sweep without points: info averaged it in."""
     path = tmp_path / "empty.pcd.bin"
     path.write_bytes(b"")
-    assert read_pcd_bin(path).shape == (0, 5)
+    with pytest.raises(DataFormatError) as caught:
+        read_pcd_bin(path, token="sd9")
+    assert str(caught.value) == f"{path}: record sd9: empty lidar file (0 bytes): a download that stopped?"
 
 
 def test_truncated_pcd_bin_is_a_data_format_error(tmp_path):
