@@ -137,7 +137,7 @@ def _set(*keys, value):
     (_set("best_nms", "axis-nms", value="axis-nms@0.7"),
      "field 'best_nms.axis-nms': must be one of the methods, got 'axis-nms@0.7'"),
     (_set("regions", "all", "vanilla", "car", "AP", value=float("nan")),
-     "field 'regions.all.vanilla.car.AP': must be a number or null"),
+     "field 'regions.all.vanilla.car.AP': must be a number in [0, 100] or null"),
     (_set("boxes", value="x"), "field 'boxes': must be an object, got str"),
     (_set("boxes", "oracle", value=-1), "field 'boxes.oracle': must be a whole number >= 0"),
     (_set("classes", value=3), "field 'classes': must be a list of class names"),
@@ -162,7 +162,7 @@ def test_a_table_field_of_the_wrong_type_exits_2_naming_it(runs, folders, change
     (_set("timings", "scenes_s", value="abc"), "field 'timings.scenes_s': must be a number of seconds"),
     (_set("eval", value=3), "field 'eval': must be the evaluation folder's path"),
     (_set("regions", "all", "vanilla", "car", "AP", value=10**400),
-     "field 'regions.all.vanilla.car.AP': must be a number or null"),
+     "field 'regions.all.vanilla.car.AP': must be a number in [0, 100] or null"),
 ])
 def test_a_damaged_baseline_report_exits_2_naming_its_field(runs, tmp_path, change, message):
     """A gate that crashed would exit 1, which CI reads as a regression."""
