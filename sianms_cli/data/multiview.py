@@ -48,14 +48,14 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from sianms_cli.data.cache import complete_manifest, read_shard_table, shard_records
+from sianms_cli.data.cache import MANIFEST, complete_manifest, read_shard_table, shard_records
 from sianms_cli.data.frustum_dataset import FrustumSelection, frustum_shards
 from sianms_cli.data.schemas import FRUSTUMS_SCHEMA, with_metadata
 from sianms_cli.errors import DataFormatError, SianmsError
@@ -63,6 +63,8 @@ from sianms_cli.geometry.boxes import points_in_boxes
 from sianms_cli.geometry.frustum import rotate_to_frustum
 from sianms_cli.geometry.transforms import sensor_to_global
 from sianms_cli.io import atomic_file, sha256_of
+from sianms_cli.json_stream import is_finite_number
+from sianms_cli.prepare.config import MAX_SWEEPS
 from sianms_cli.progress import SILENT, Progress
 
 UNION_DATASET = "multiview_frustums"
@@ -105,12 +107,27 @@ class MultiviewSettings:
 def multiview_settings(cache: str | Path, dataroot: str, max_distance: float) -> MultiviewSettings:
     """The settings of ``cache``'s union frustums, its LiDAR settings read from its manifest."""
     config = complete_manifest(cache)["config"]
-    max_depth = config.get("max_depth")
-    return MultiviewSettings(dataroot=str(dataroot), version=str(config.get("version", "")),
-                             dataset_sha256=str(config.get("dataset_sha256", "")), sweeps=int(config.get("sweeps", 0)),
-                             min_depth=float(config.get("min_depth", 1.0)),
-                             max_depth=math.inf if max_depth is None else float(max_depth),
+    path = Path(cache) / MANIFEST
+
+    def setting(name: str, default: Any, holds: Callable[[Any], bool], expected: str) -> Any:
+        value = config.get(name, default)
+        if not holds(value):  # prepare wrote it: an edit
+            raise DataFormatError(path, f"expected {expected}, got {value!r}", field=f"config.{name}")
+        return value
+
+    min_depth = setting("min_depth", 1.0, lambda v: is_finite_number(v) and v >= 0, "a finite number >= 0")
+    max_depth = setting("max_depth", None, lambda v: v is None or (is_finite_number(v) and v > min_depth),
+                        "null or a finite number above min_depth")
+    sweeps = setting("sweeps", 0, lambda v: type(v) is int and 0 <= v <= MAX_SWEEPS, f"a whole number in "
+                     f"[0, {MAX_SWEEPS}]")
+    return MultiviewSettings(dataroot=str(dataroot), version=setting("version", "", _is_text, "a string"),
+                             dataset_sha256=setting("dataset_sha256", "", _is_text, "a string"), sweeps=sweeps,
+                             min_depth=float(min_depth), max_depth=math.inf if max_depth is None else float(max_depth),
                              max_distance=float(max_distance))
+
+
+def _is_text(value: Any) -> bool:
+    return isinstance(value, str)
 
 
 def shard_key(cache: str | Path, shard: str, selection: FrustumSelection, settings: MultiviewSettings,

@@ -161,3 +161,21 @@ def test_a_dataroot_of_another_dataset_is_refused(inputs, tmp_path):
         build_union_shards(cache, tmp_path / "unions", ALL, multiview_settings(cache, str(other), 50.0))
     with pytest.raises(DataFormatError, match="version folder not found"):
         build_union_shards(cache, tmp_path / "unions", ALL, multiview_settings(cache, str(tmp_path / "none"), 50.0))
+
+
+@pytest.mark.parametrize("name, value, expected", [
+    ("sweeps", "x", "a whole number in [0, 100]"),
+    ("min_depth", None, "a finite number >= 0"),
+    ("max_depth", "far", "null or a finite number above min_depth"),
+    ("max_depth", 0.5, "null or a finite number above min_depth"),
+])
+def test_an_edited_lidar_setting_of_the_manifest_is_named(inputs, tmp_path, name, value, expected):
+    """Each had ended in a ValueError or TypeError traceback when union frustums were set up."""
+    cache, root, _ = inputs
+    edited = shutil.copytree(cache, tmp_path / "cache")
+    manifest = json.loads((edited / "manifest.json").read_text())
+    manifest["config"][name] = value
+    (edited / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(DataFormatError) as raised:
+        multiview_settings(edited, str(root), 50.0)
+    assert str(raised.value) == f"{edited / 'manifest.json'}: field 'config.{name}': expected {expected}, got {value!r}"
