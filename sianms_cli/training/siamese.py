@@ -76,6 +76,11 @@ from sianms_cli.training.run import Checkpoint, RunFolder, cache_inputs, check_l
 
 KIND = "siamese"
 MAX_WIDTH = 2**16  # a layer width past any sweep (the paper's: 100 to 256): a typo is refused, not allocated
+MAX_MLP_WEIGHTS = 10**9
+"""Weights between the MLP's hidden layers and the embedding: 4 GB in float32 and three times that
+with Adam's moments. Every width may be within MAX_WIDTH and their products still exhaust memory
+(four layers of 65,536 had been killed by the OOM killer, leaving config.json behind)."""
+MAX_MARGIN = 1e6  # --beta: a distance no embedding reaches; the loss squares it in float32 (max 3.4e38)
 THRESHOLD_STEPS = 64  # dis_thr candidates: quantiles of the validation candidates' distances
 EMBED_CHUNK = 512  # detections embedded per forward pass at validation
 CURVES = (  # curves.png panels: (title, metrics.csv columns drawn together)
@@ -120,8 +125,11 @@ class SiameseConfig:
              f"got {self.conv_channels}"),
             (all(1 <= width <= MAX_WIDTH for width in self.hidden),
              f"--hidden widths must be in [1, {MAX_WIDTH}], got {self.hidden}"),
-            (0 <= self.alpha < self.beta and math.isfinite(self.beta),
-             f"--alpha and --beta need 0 <= alpha < beta, got {self.alpha}, {self.beta}"),
+            (0 <= self.alpha < self.beta <= MAX_MARGIN,
+             f"--alpha and --beta need 0 <= alpha < beta <= {MAX_MARGIN:g}, got {self.alpha}, {self.beta}"),
+            (_mlp_weights(self.hidden, self.dim) <= MAX_MLP_WEIGHTS,
+             f"--hidden {','.join(map(str, self.hidden))} and --dim {self.dim} make "
+             f"{_mlp_weights(self.hidden, self.dim):,} weights between the layers; at most {MAX_MLP_WEIGHTS:,}"),
             (self.lr > 0 and math.isfinite(self.lr), f"--lr must be positive, got {self.lr}"),
             (0 < self.lr_decay <= 1, f"--lr-decay must be in (0, 1], got {self.lr_decay}"),
             (self.lr_step >= 1, f"--lr-step must be at least 1, got {self.lr_step}"),
@@ -141,6 +149,11 @@ class SiameseConfig:
         data["cache"] = str(Path(self.cache).resolve())
         data["val_cache"] = None if self.val_cache is None else str(Path(self.val_cache).resolve())
         return data
+
+
+def _mlp_weights(hidden: tuple[int, ...], dim: int) -> int:
+    widths = (*hidden, dim)
+    return sum(a * b for a, b in zip(widths, widths[1:]))
 
 
 def build_model(config: SiameseConfig | dict[str, Any], feature_shape: tuple[int, int, int]) -> SiameseEncoder:

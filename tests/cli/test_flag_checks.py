@@ -56,6 +56,10 @@ def test_trainings_refuse_zero_streams_rather_than_taking_it_for_the_default(com
     (dict(dim=100_000_000_000), r"--dim must be in \[1, 65536\], got 100000000000"),
     (dict(conv_channels=(128, 70_000)), r"--conv-channels must be two widths in \[1, 65536\]"),
     (dict(hidden=(0,)), r"--hidden widths must be in \[1, 65536\], got \(0,\)"),
+    # each width allowed, their products not: the OOM killer had ended the run without a word
+    (dict(hidden=(65536,) * 4, dim=65536), r"^--hidden 65536,65536,65536,65536 and --dim 65536 make "
+                                           r"17,179,869,184 weights between the layers; at most 1,000,000,000$"),
+    (dict(alpha=0.0, beta=1e300), r"^--alpha and --beta need 0 <= alpha < beta <= 1e\+06, got 0.0, 1e\+300$"),
 ])
 def test_siamese_bounds_its_layer_widths(flags, message):
     with pytest.raises(SianmsError, match=message):
