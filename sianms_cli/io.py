@@ -94,10 +94,17 @@ def partial_of(name: str) -> str | None:
     return match.group(1) if match else None
 
 
+def real_path(path: str | Path) -> Path:
+    """``path`` absolute, through every symbolic link. Unlike ``Path.resolve`` on Python 3.11,
+    which raises RuntimeError (a traceback) for a link loop, a loop is left for the first use of
+    the path to report as the OS error it is ("Too many levels of symbolic links")."""
+    return Path(os.path.realpath(path))
+
+
 def check_outside_dataroot(path: str | Path, dataroot: str | Path, flag: str, command: str) -> None:
     """Refuse a ``flag`` file inside the dataroot of a ``command`` that only reads the dataset
     (with --overwrite, an --out naming one of its tables would replace that table)."""
-    if Path(path).resolve().is_relative_to(Path(dataroot).resolve()):
+    if real_path(path).is_relative_to(real_path(dataroot)):
         raise SianmsError(f"{flag}: {path} is inside the dataroot {dataroot}, which {command} only reads; "
                           "write it elsewhere")
 
@@ -119,7 +126,11 @@ def make_folder(path: str | Path) -> Path:
             path.mkdir(parents=True, exist_ok=True)
         except FileExistsError as error:
             # With exist_ok, mkdir raises this only when ``path`` is there but is not a folder:
-            # ENOTDIR says so (describe_os_error), EEXIST's "File exists" misleads.
+            # ENOTDIR says so (describe_os_error), EEXIST's "File exists" misleads; a link that
+            # leads nowhere (or into a loop of links) is said to be one.
+            if path.is_symlink() and not path.exists():
+                raise FileNotFoundError(errno.ENOENT, "a link that leads to no folder (nowhere, or a loop of links)",
+                                        str(path)) from error
             raise NotADirectoryError(errno.ENOTDIR, os.strerror(errno.ENOTDIR), str(path)) from error
     return path
 
@@ -204,8 +215,13 @@ def write_text(path: str | Path, text: str) -> Path:
 
 
 def write_json(path: str | Path, data: Any) -> Path:
-    """Write ``data`` as indented JSON with sorted keys (diff-friendly, reproducible)."""
-    return write_text(path, json.dumps(data, indent=2, sort_keys=True) + "\n")
+    """Write ``data`` as :func:`json_text` (indented JSON with sorted keys)."""
+    return write_text(path, json_text(data))
+
+
+def json_text(data: Any) -> str:
+    """``data`` as indented JSON with sorted keys (diff-friendly, reproducible)."""
+    return json.dumps(data, indent=2, sort_keys=True) + "\n"
 
 
 def refuse_non_file(path: Path) -> None:
@@ -217,8 +233,9 @@ def refuse_non_file(path: Path) -> None:
         raise OutputError(f"cannot write {path}: not a regular file")
 
 
-def write_texts_together(texts: dict[Path, str], *, overwrite: bool = False) -> None:
-    """Write each ``{path: text}`` (UTF-8) under its temporary name, then rename them all into place.
+def write_files_together(contents: dict[Path, str | bytes], *, overwrite: bool = False) -> None:
+    """Write each ``{path: content}`` (a text as UTF-8) under its temporary name, then rename them
+    all into place.
 
     A failure (a full disk, a file where a folder must be) leaves none of the paths written and
     none replaced: the temporary files are removed, a file already renamed when a later rename
@@ -229,10 +246,10 @@ def write_texts_together(texts: dict[Path, str], *, overwrite: bool = False) -> 
     committed: list[Path] = []
     set_aside: dict[Path, Path] = {}  # destination: its earlier file, under a temporary name
     try:
-        for path, text in texts.items():
+        for path, content in contents.items():
             files.append(AtomicFile(check_writable_output(path, overwrite=overwrite)))
             with os_errors_as_output_errors(path):
-                files[-1].stream.write(text.encode("utf-8"))
+                files[-1].stream.write(content.encode("utf-8") if isinstance(content, str) else content)
                 files[-1].stream.flush()  # a full disk fails here, before anything is renamed
         for file in files:
             if file.path.exists():
@@ -356,11 +373,31 @@ def build_folder(destination: str | Path, build: Callable[[Path], T]) -> tuple[P
     ``destination`` may be replaced (``build`` may check again before it returns)."""
     staging = staging_folder(destination)
     try:
-        built = build(staging)
+        with errors_name_files_under(Path(os.path.abspath(destination)), staging):
+            built = build(staging)
         return publish_folder(staging, destination), built
     except BaseException:
         remove_folder(staging)
         raise
+
+
+@contextmanager
+def errors_name_files_under(out: Path, staging: Path) -> Iterator[None]:
+    """Write errors name the file under ``out``, not under the staging folder.
+
+    The staging folder is removed before the user reads the message, and ``out`` is the path
+    they gave. Any OSError under the staging folder (or naming no file) the writers did not
+    convert becomes an OutputError here too.
+    """
+    try:
+        yield
+    except OutputError as error:
+        raise OutputError(str(error).replace(str(staging), str(out))) from None
+    except OSError as error:
+        if error.filename is not None and not str(error.filename).startswith(str(staging)):
+            raise  # an input's (a picture the report embeds): the command's OS-error line names it
+        where = str(error.filename or staging).replace(str(staging), str(out))
+        raise OutputError(f"cannot write {describe_os_error(error, where)}") from None
 
 
 def publish_folder(staging: Path, destination: str | Path) -> Path:

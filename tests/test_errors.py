@@ -210,3 +210,25 @@ def test_an_error_a_library_made_of_an_interrupt_ends_as_interrupted(monkeypatch
     monkeypatch.setattr(processes, "_SIGNALS_RECEIVED", [signal.SIGINT])
     result = CliRunner().invoke(probe_app(failure), ["fail"])
     assert (result.exit_code, result.output) == (130, f"interrupted (SIGINT); {_app.INTERRUPTED}\n")
+
+
+@pytest.mark.parametrize("name, shown", [("odd\nname", "odd\\nname"), ("tab\there", "tab\\there")])
+def test_a_file_name_with_a_control_character_keeps_the_error_one_line(tmp_path, name, shown):
+    """A newline in a path had split the error over two lines."""
+    (tmp_path / name).write_text("a file where the output folder should be")
+    result = subprocess.run([sys.executable, "-m", "sianms_cli", "report", str(tmp_path / name)],
+                            capture_output=True, text=True)
+    assert result.returncode == 2 and result.stderr.count("\n") == 1
+    assert result.stderr.startswith("error: ") and shown in result.stderr
+
+
+@pytest.mark.parametrize("command", [["synth", "--scenes", "1", "--sensors", "none", "--out"],
+                                     ["info", "--dataroot", "{data}", "--out"]])
+def test_a_symbolic_link_loop_is_one_error_line(tmp_path, tiny_dataroot, command):
+    """Path.resolve raises RuntimeError on a loop (Python 3.11): a traceback, exit 1."""
+    (tmp_path / "a").symlink_to(tmp_path / "b")
+    (tmp_path / "b").symlink_to(tmp_path / "a")
+    arguments = [part.format(data=tiny_dataroot) for part in command] + [str(tmp_path / "a")]
+    result = subprocess.run([sys.executable, "-m", "sianms_cli", *arguments], capture_output=True, text=True)
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert result.stderr.startswith("error: ") and str(tmp_path / "a") in result.stderr

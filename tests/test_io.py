@@ -313,9 +313,9 @@ def test_texts_written_together_put_back_the_files_they_replaced_when_a_rename_f
 
     monkeypatch.setattr(io.os, "replace", second_rename_fails)
     with pytest.raises(io.OutputError, match="d.json"):
-        io.write_texts_together({report: "new report", details: "new details"}, overwrite=True)
+        io.write_files_together({report: "new report", details: "new details"}, overwrite=True)
     assert failures and (report.read_text(), details.read_text()) == ("old report", "old details")
     assert sorted(path.name for path in tmp_path.iterdir()) == ["d.json", "r.json"]
-    io.write_texts_together({report: "new report", details: "new details"}, overwrite=True)
+    io.write_files_together({report: "new report", details: "new details"}, overwrite=True)
     assert (report.read_text(), details.read_text()) == ("new report", "new details")
     assert sorted(path.name for path in tmp_path.iterdir()) == ["d.json", "r.json"]

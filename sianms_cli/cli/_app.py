@@ -126,8 +126,10 @@ def say_interrupted(terminated: bool) -> None:
 
 
 def say_error(line: str) -> None:
-    """A failed command's one ``error:`` line, on stderr."""
-    typer.echo(line, err=True)
+    """A failed command's one ``error:`` line, on stderr: a character that does not print (a newline
+    in a file name, an undecodable byte) is written as its escape, so the line stays one line."""
+    typer.echo("".join(ch if ch.isprintable() else ch.encode("unicode_escape").decode("ascii") for ch in line),
+               err=True)
     _ending_said.append("error")
 
 

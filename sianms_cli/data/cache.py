@@ -40,7 +40,7 @@ import pyarrow.parquet as pq
 
 from sianms_cli.data.schemas import DATASETS, SCHEMA_VERSION, cache_schemas
 from sianms_cli.errors import DataFormatError
-from sianms_cli.io import PARTIAL_SUFFIX, AtomicFile, os_errors_as_output_errors, read_json, sha256_of, write_json
+from sianms_cli.io import PARTIAL_SUFFIX, AtomicFile, os_errors_as_output_errors, read_json, real_path, sha256_of, write_json
 
 MANIFEST = "manifest.json"
 SHARDS = "_shards"
@@ -239,7 +239,7 @@ def write_manifest(root: Path, config: dict[str, Any], expected_shards: list[str
         "config": config,
         "shards_expected": len(expected_shards),
         "shards_finished": len([s for s in expected_shards if s in records]),
-        "dataroot": str(Path(dataroot).resolve()),
+        "dataroot": str(real_path(dataroot)),
         "complete": bool(expected_shards) and not missing,
         "missing_shards": missing,
         "counts": {"samples": samples, **totals},

@@ -61,8 +61,8 @@ from sianms_cli.evaluation.results import (
     read_results,
     validate_results,
 )
-from sianms_cli.io import (check_outside_dataroot, check_writable_output, expand_home, read_json, write_text,
-                           write_texts_together)
+from sianms_cli.io import (check_outside_dataroot, check_writable_output, expand_home, read_json, real_path, write_text,
+                           write_files_together)
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.tables import check_version_name
 from sianms_cli.nuscenes.rigs import sample_rigs
@@ -136,19 +136,19 @@ def run(config: MetricsConfig, out: str | Path | None = None, *, details: str | 
     ``out`` (the JSON report, :func:`~sianms_cli.evaluation.report.write_report`) and
     ``details`` (the 101-point curves of every region, :func:`write_details`) are refused
     before any work when they are a folder, the results file, the same file, or exist while
-    ``overwrite`` is false; they are written atomically together (:func:`~sianms_cli.io.write_texts_together`), so a
+    ``overwrite`` is false; they are written atomically together (:func:`~sianms_cli.io.write_files_together`), so a
     run that fails to write one leaves neither. ``progress`` hears of the results file's bytes
     read, then of the regions evaluated.
     """
     outputs = {flag: path for flag, path in (("--out", out), ("--details", details)) if path is not None}
     for flag, path in outputs.items():
-        if Path(path).resolve() == Path(config.results).resolve():
+        if real_path(path) == real_path(config.results):
             raise SianmsError(f"{flag}: {path} is the results file; write it elsewhere")
-        if Path(path).resolve() == Path(config.detection_config).resolve():
+        if real_path(path) == real_path(config.detection_config):
             raise SianmsError(f"{flag}: {path} is the --config file; write it elsewhere")
         check_outside_dataroot(path, config.dataroot, flag, "metrics")
         check_writable_output(path, overwrite=overwrite)
-    if len(outputs) == 2 and Path(out).resolve() == Path(details).resolve():
+    if len(outputs) == 2 and real_path(out) == real_path(details):
         raise SianmsError(f"--details: {details} is also --out; give each its own file")
     detection = load_config(config.detection_config)
     db = NuScenesDB(config.dataroot, config.version)
@@ -168,7 +168,7 @@ def run(config: MetricsConfig, out: str | Path | None = None, *, details: str | 
     texts = {Path(out): report_json(report) + "\n"} if out is not None else {}
     if details is not None:
         texts[Path(details)] = details_json(curves)
-    write_texts_together(texts, overwrite=overwrite)
+    write_files_together(texts, overwrite=overwrite)
     return report
 
 

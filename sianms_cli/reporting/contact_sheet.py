@@ -18,6 +18,7 @@ the sample is a grey tile saying so.
 
 from __future__ import annotations
 
+import io
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,7 +26,7 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from sianms_cli.errors import DataFormatError, SianmsError
-from sianms_cli.io import atomic_file, check_writable_output
+from sianms_cli.io import check_writable_output, write_bytes
 from sianms_cli.nuscenes.keyframes import keyframe_rows
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.reporting.dataset_summary import night_and_rain
@@ -130,12 +131,15 @@ def sheet_format(out_path: str | Path) -> str:
     return image_format
 
 
-def save_contact_sheet(sheet: Image.Image, out_path: str | Path) -> None:
-    """Write a drawn sheet to ``out_path`` (.png, or .jpg/.jpeg at quality 90), atomically."""
+def sheet_bytes(sheet: Image.Image, out_path: str | Path) -> bytes:
+    """A drawn sheet encoded for ``out_path``'s suffix (.png, or .jpg/.jpeg at quality 90).
+
+    Encoded in memory, then written whole: Pillow's JPEG encoder writes to a file's descriptor
+    and takes a short write on a full disk for success (a cut-off picture, exit 0)."""
     image_format = sheet_format(out_path)
-    options = {"quality": 90} if image_format == "JPEG" else {}
-    with atomic_file(Path(out_path)) as stream:
-        sheet.save(stream, format=image_format, **options)
+    encoded = io.BytesIO()
+    sheet.save(encoded, format=image_format, **({"quality": 90} if image_format == "JPEG" else {}))
+    return encoded.getvalue()
 
 
 def write_contact_sheet(dataroot: str | Path, version: str, out_path: str | Path, *, tile_width: int = TILE_WIDTH,
@@ -161,5 +165,5 @@ def write_contact_sheet(dataroot: str | Path, version: str, out_path: str | Path
     check_writable_output(Path(out_path), overwrite=overwrite)
     db = NuScenesDB(dataroot, version) if db is None else db
     rows = pick_rows(db)
-    save_contact_sheet(render_contact_sheet(db, rows, tile_width), out_path)
+    write_bytes(Path(out_path), sheet_bytes(render_contact_sheet(db, rows, tile_width), out_path))
     return rows

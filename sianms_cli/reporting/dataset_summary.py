@@ -22,7 +22,7 @@ import numpy as np
 from sianms_cli.errors import SianmsError
 from sianms_cli.evaluation.config import DETECTION_CVPR_2019
 from sianms_cli.geometry.quaternion import quat_to_matrix
-from sianms_cli.io import check_outside_dataroot, check_writable_output, write_json
+from sianms_cli.io import check_outside_dataroot, check_writable_output, json_text, real_path, write_files_together
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.nuscenes.classes import CATEGORY_TO_DETECTION, DETECTION_CLASSES
 from sianms_cli.nuscenes.loader import NuScenesDB
@@ -73,7 +73,7 @@ def run(config: InfoConfig, out: str | Path | None = None, *, contact_sheet: str
     Both outputs are checked before any work and written once both are made: a bad picture name
     or an image that does not decode leaves neither.
     """
-    if contact_sheet is not None and out is not None and Path(contact_sheet).resolve() == Path(out).resolve():
+    if contact_sheet is not None and out is not None and real_path(contact_sheet) == real_path(out):
         raise SianmsError(f"--contact-sheet: {contact_sheet} is also --out; give each its own file")
     for path, flag in ((out, "--out"), (contact_sheet, "--contact-sheet")):
         if path is not None:
@@ -85,17 +85,17 @@ def run(config: InfoConfig, out: str | Path | None = None, *, contact_sheet: str
         sheet_format(contact_sheet)
     db = NuScenesDB(config.dataroot, config.version)
     summary = summarize(db, config.max_sweeps, progress)
+    contents: dict[Path, str | bytes] = {}
     if contact_sheet is not None:
-        from sianms_cli.reporting.contact_sheet import pick_rows, render_contact_sheet, save_contact_sheet
+        from sianms_cli.reporting.contact_sheet import pick_rows, render_contact_sheet, sheet_bytes
 
         rows = pick_rows(db)
-        sheet = render_contact_sheet(db, rows)
+        contents[Path(contact_sheet)] = sheet_bytes(render_contact_sheet(db, rows), contact_sheet)
         summary["contact_sheet"] = {"path": str(contact_sheet),
                                     "rows": [{"condition": row.condition, "scene": row.scene_name} for row in rows]}
     if out is not None:
-        write_json(out, summary)
-    if contact_sheet is not None:
-        save_contact_sheet(sheet, contact_sheet)
+        contents[Path(out)] = json_text(summary)
+    write_files_together(contents, overwrite=overwrite)  # both or neither, the files they replace put back
     return summary
 
 

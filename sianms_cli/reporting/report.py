@@ -35,7 +35,7 @@ from types import MappingProxyType
 from typing import Any, Mapping
 
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
-from sianms_cli.io import build_folder, first_foreign_file, is_inside_working_folder, read_json, write_text
+from sianms_cli.io import build_folder, first_foreign_file, is_inside_working_folder, read_json, real_path, write_text
 from sianms_cli.json_stream import is_finite_number
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.reporting.eval_table import (
@@ -599,7 +599,7 @@ def draw_figures(folder: Path, summary: Mapping[str, Any], eval_folder: Path, ou
                            f"mean right of recall {cfg['min_recall']})", folder / TP_CURVES_FILE, TP_CURVES_FILE)]
     for picture in sorted((eval_folder / "pictures").glob("*.png")):
         figures.append(Figure(f"Bird's-eye view of sample {picture.stem}, one panel per method", picture,
-                              os.path.relpath(picture.resolve(), out.resolve())))
+                              os.path.relpath(real_path(picture), real_path(out))))
     return figures, notes
 
 

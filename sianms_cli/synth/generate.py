@@ -42,7 +42,7 @@ from __future__ import annotations
 import dataclasses
 import datetime as dt
 import re
-from contextlib import closing, contextmanager
+from contextlib import closing
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterator
@@ -238,13 +238,12 @@ def run(
     records are still written in scene order, so the output does not depend on ``workers``.
     """
     check_workers(workers)
-    out = Path(out).resolve()  # through a symbolic link: replace the folder it names, not the link
+    out = io.real_path(out)  # through a symbolic link: replace the folder it names, not the link
     check_output(out, overwrite=overwrite)
     names = config.scene_names()
 
     def write(staging: Path) -> None:
-        with _errors_name_files_under(out, staging):
-            _write_dataset(staging, config, names, progress, workers)
+        _write_dataset(staging, config, names, progress, workers)
         check_output(out, overwrite=overwrite)  # again: OUT may have changed during a long run
 
     io.build_folder(out, write)
@@ -322,22 +321,6 @@ def _foreign_within(entry: Path, version: str) -> Path | None:
 # in samples/CAM_FRONT is not one of them, and --overwrite refuses rather than deletes it.
 _LOGFILE = r"n[0-9]{3}-[0-9]{4}(?:-[0-9]{2}){5}[+-][0-9]{4}"
 _MAP_FILE = re.compile(r"[0-9a-f]{32}\.png")
-
-
-@contextmanager
-def _errors_name_files_under(out: Path, staging: Path) -> Iterator[None]:
-    """Write errors name the file under ``out``, not under the staging folder.
-
-    The staging folder is removed before the user reads the message, and ``out`` is the path
-    they gave. Any OSError the writers did not convert becomes an OutputError here too.
-    """
-    try:
-        yield
-    except io.OutputError as error:
-        raise io.OutputError(str(error).replace(str(staging), str(out))) from None
-    except OSError as error:
-        where = str(error.filename or staging).replace(str(staging), str(out))
-        raise io.OutputError(f"cannot write {io.describe_os_error(error, where)}") from None
 
 
 def _write_dataset(staging: Path, config: SynthConfig, names: list[str], progress: Progress, workers: int) -> None:

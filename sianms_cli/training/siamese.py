@@ -65,7 +65,7 @@ from sianms_cli.data.siamese import PairingBatch, Scene, cache_feature_shape, ep
 from sianms_cli.data.streams import check_stream_count, check_streams, rank_epoch_streams, stream_steps
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_epochs, check_seed
 from sianms_cli.json_stream import is_finite_number
-from sianms_cli.io import make_folder, partial_of, read_json, write_json, write_text
+from sianms_cli.io import make_folder, partial_of, read_json, real_path, write_json, write_text
 from sianms_cli.models.losses import double_margin_loss, pair_distances, positive_terms
 from sianms_cli.models.siamese import SiameseEncoder, parameter_count
 from sianms_cli.progress import SILENT, Progress
@@ -146,8 +146,8 @@ class SiameseConfig:
     def resolved(self) -> dict[str, Any]:
         """The config as plain types, paths absolute (config.json and the checkpoint)."""
         data = plain(asdict(self))
-        data["cache"] = str(Path(self.cache).resolve())
-        data["val_cache"] = None if self.val_cache is None else str(Path(self.val_cache).resolve())
+        data["cache"] = str(real_path(self.cache))
+        data["val_cache"] = None if self.val_cache is None else str(real_path(self.val_cache))
         return data
 
 

@@ -197,3 +197,18 @@ def test_a_contact_sheet_that_cannot_be_drawn_leaves_no_out_either(tiny_dataroot
                   contact_sheet=tmp_path / "sheet.png")
     assert json.loads((tmp_path / "info.json").read_text())["contact_sheet"] == summary["contact_sheet"]
     assert summary["contact_sheet"]["path"] == str(tmp_path / "sheet.png") and (tmp_path / "sheet.png").is_file()
+
+
+@pytest.mark.parametrize("name", ["sheet.jpg", "sheet.png"])
+def test_a_contact_sheet_that_does_not_fit_on_the_disk_leaves_neither_file(tiny_dataroot, full_disk, name):
+    """Pillow's JPEG encoder took the full disk's short write for success: a cut-off picture, exit 0
+    (and with --overwrite it replaced a good one); --out had been written before the sheet."""
+    from sianms_cli.io import OutputError
+    from sianms_cli.reporting.contact_sheet import write_contact_sheet
+
+    (full_disk / "pad").write_bytes(bytes(244 * 1024))
+    with pytest.raises(OutputError, match=f"cannot write {full_disk / name}: No space left on device"):
+        run(InfoConfig(str(tiny_dataroot), max_sweeps=0), full_disk / "info.json", contact_sheet=full_disk / name)
+    with pytest.raises(OutputError, match="No space left on device"):
+        write_contact_sheet(tiny_dataroot, "v1.0-mini", full_disk / name)
+    assert sorted(path.name for path in full_disk.iterdir()) == ["pad"]

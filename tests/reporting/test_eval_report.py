@@ -321,3 +321,16 @@ def test_a_link_to_a_report_is_not_replaced(tmp_path):
     with pytest.raises(OutputExistsError, match=f"^{link} is a link; give the folder it points to, or another --out$"):
         run(ReportConfig(eval=str(evaluation)), link, overwrite=True)
     assert link.is_symlink() and sorted(path.name for path in tmp_path.iterdir()) == ["eval", "latest"]
+
+
+def test_a_full_disk_names_the_report_folder_not_its_staging_folder(tmp_path, full_disk):
+    """The line had named the hidden staging folder, deleted before the user read it."""
+    from sianms_cli.io import OutputError
+
+    evaluation = make_eval(tmp_path / "eval", details=True)
+    (full_disk / "pad").write_bytes(bytes(250 * 1024))
+    with pytest.raises(OutputError) as raised:
+        run(ReportConfig(eval=str(evaluation)), full_disk / "report")
+    assert str(raised.value).startswith(f"cannot write {full_disk / 'report'}/") and ".partial" not in str(raised.value)
+    assert str(raised.value).endswith("No space left on device")
+    assert sorted(path.name for path in full_disk.iterdir()) == ["pad"]
