@@ -14,6 +14,7 @@ between two results also closes the pool before the caller cleans up.
 
 from __future__ import annotations
 
+import atexit
 import multiprocessing
 import os
 import signal
@@ -90,9 +91,26 @@ def interrupt_on_signals() -> None:
     and one raised where Python cannot raise it is delivered again (:func:`_interrupt_again`)."""
     signal.signal(signal.SIGINT, _raise_interrupt)
     signal.signal(signal.SIGTERM, _raise_interrupt)
+    if _ignore_signals_at_shutdown not in _AT_SHUTDOWN:  # registered first, so it runs last
+        atexit.register(_ignore_signals_at_shutdown)
+        _AT_SHUTDOWN.append(_ignore_signals_at_shutdown)
     if sys.unraisablehook is not _interrupt_again:
         threading.Thread(target=_deliver_again_when_asked, name="sianms-interrupt-again", daemon=True).start()
         sys.unraisablehook = _interrupt_again
+
+
+_AT_SHUTDOWN: list[Callable[[], None]] = []
+
+
+def _ignore_signals_at_shutdown() -> None:
+    """The last exit handler: SIGINT and SIGTERM are ignored while the interpreter tears down.
+    Python puts back the default action of a signal it handled as it finalises, so one landing
+    in the teardown after every exit handler (a second or more once torch is loaded) killed the
+    process: 130 or 143 without a word, for a command that had finished. An ignored signal keeps
+    the code the command chose; the handlers before this one still end the process at once
+    (:func:`exit_on_signals`)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
 
 def exit_on_signals(code: int) -> None:

@@ -232,3 +232,26 @@ def test_a_symbolic_link_loop_is_one_error_line(tmp_path, tiny_dataroot, command
     result = subprocess.run([sys.executable, "-m", "sianms_cli", *arguments], capture_output=True, text=True)
     assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
     assert result.stderr.startswith("error: ") and str(tmp_path / "a") in result.stderr
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_in_the_interpreter_teardown_keeps_the_code_the_command_chose(signum):
+    """Python puts back a handled signal's default action as it finalises: one landing in the
+    teardown (a second or more once torch is loaded) had killed a finished command, 130 or 143
+    without a word."""
+    script = textwrap.dedent(f"""
+        import os, sys, time
+        from sianms_cli.processes import exit_on_signals, interrupt_on_signals
+
+        class Late:  # a module global: collected in the teardown, after every exit handler
+            def __del__(self):
+                os.kill(os.getpid(), {int(signum)})
+                time.sleep(0.3)
+
+        interrupt_on_signals()
+        late = Late()
+        exit_on_signals(0)
+        sys.exit(0)
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert (done.returncode, done.stderr) == (0, "")
