@@ -40,7 +40,8 @@ import pyarrow.parquet as pq
 
 from sianms_cli.data.schemas import DATASETS, SCHEMA_VERSION, cache_schemas
 from sianms_cli.errors import DataFormatError
-from sianms_cli.io import PARTIAL_SUFFIX, AtomicFile, os_errors_as_output_errors, read_json, real_path, sha256_of, write_json
+from sianms_cli.io import (PARTIAL_SUFFIX, AtomicFile, os_errors_as_output_errors, read_json, real_path, sha256_of,
+                           write_json)
 
 MANIFEST = "manifest.json"
 SHARDS = "_shards"

@@ -274,7 +274,8 @@ def _finished_table(out: Path) -> dict[str, Any]:
     try:
         return read_json(out / "table.json")
     except DataFormatError as error:
-        raise DataFormatError(error.path, f"{error.detail}; {FINISH_AGAIN}", token=error.token, field=error.field) from None
+        raise DataFormatError(error.path, f"{error.detail}; {FINISH_AGAIN}", token=error.token,
+                              field=error.field) from None
 
 
 def _first_foreign(out: Path, entries: list[Path], stored: dict[str, Any]) -> Path | None:

@@ -678,8 +678,9 @@ def run(config: ReportConfig, out: str | Path | None = None, *, overwrite: bool 
     if config.baseline is not None:
         baseline = read_baseline(config.baseline)
         if baseline["table_class"] != summary["table_class"]:  # not a config difference --force may pass over
-            raise DataFormatError(config.baseline, f"Table I of {baseline['table_class']!r} where {eval_folder}'s is of "
-                                                   f"{summary['table_class']!r}: no cell compares", field="table_class")
+            raise DataFormatError(config.baseline, f"Table I of {baseline['table_class']!r} where {eval_folder}'s "
+                                                   f"is of {summary['table_class']!r}: no cell compares",
+                                  field="table_class")
         differing = config_differences(summary, baseline)
         if differing and not config.force:
             raise SianmsError(f"--baseline: {config.baseline} was evaluated with another config (differs in: "
