@@ -33,6 +33,8 @@ U(0, 0.7) for false positives, so the ranking mixes them as a real detector's do
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import sys
 from pathlib import Path
 
@@ -42,22 +44,28 @@ use_avx2_kernels()  # before numpy loads: the same bytes as `sianms` writes on a
 
 import numpy as np  # noqa: E402
 
-from sianms_cli.errors import SianmsError
+from sianms_cli.errors import SianmsError, check_seed
 from sianms_cli.evaluation.boxes import NO_ATTRIBUTE
 from sianms_cli.evaluation.dataset import eval_split, ground_truth
 from sianms_cli.evaluation.results import results_from_boxes, write_results
 from sianms_cli.geometry.quaternion import quat_multiply, yaw_to_quat
+from sianms_cli.io import check_outside_dataroot, describe_os_error
 from sianms_cli.nuscenes.loader import NuScenesDB
 
 PERTURBATIONS = ("drop", "translation", "yaw", "size", "velocity", "false-positives")
+PERTURBATION_LIMITS = {"drop": 1.0, "translation": 100.0, "yaw": 2 * math.pi, "size": 3.0, "velocity": 100.0,
+                       "false-positives": 100.0}
+"""Upper bounds of the --perturb values: 100 m and 100 m/s of noise, a full turn, sizes scaled by
+exp(N(0, 3)) (a factor of 8,000 at three sigma), 100 false positives per kept box. Past them a
+value is a typo: sizes overflowed to inf and 1e12 false positives asked for 226 TiB."""
 FALSE_POSITIVE_OFFSET_M = (5.0, 10.0)  # beyond the largest matching threshold (4 m) of their own box
 
 
 def parse_perturbations(text: str | None) -> dict[str, float] | None:
     """``"translation=0.5,drop=0.2"`` as {name: value}; None when not perturbing.
 
-    Raises SianmsError naming ``--perturb`` for an unknown key, a value that is not a
-    non-negative number, or a ``drop`` above 1.
+    Raises SianmsError naming ``--perturb`` for an unknown key, or a value that is not a number
+    in [0, :data:`PERTURBATION_LIMITS`].
     """
     if text is None:
         return None
@@ -72,8 +80,8 @@ def parse_perturbations(text: str | None) -> dict[str, float] | None:
             number = float(value)
         except ValueError:
             raise SianmsError(f"--perturb: {key} needs a number, got '{value}'") from None
-        if not 0 <= number < float("inf") or (key == "drop" and number > 1):
-            raise SianmsError(f"--perturb: {key} must be {'in [0, 1]' if key == 'drop' else '>= 0'}, got {number:g}")
+        if not 0 <= number <= PERTURBATION_LIMITS[key]:
+            raise SianmsError(f"--perturb: {key} must be in [0, {PERTURBATION_LIMITS[key]:g}], got {number:g}")
         values[key] = number
     return values
 
@@ -109,6 +117,10 @@ def perturb(boxes: np.ndarray, amounts: dict[str, float], rng: np.random.Generat
 def make_results(dataroot: str | Path, version: str, split: str, out: str | Path,
                  perturbations: dict[str, float] | None = None, *, seed: int = 0, overwrite: bool = False) -> int:
     """Write the results file ``out``; returns the number of boxes written."""
+    check_seed(seed)
+    check_outside_dataroot(out, dataroot, "--out", "make_results.py")  # --overwrite would replace a table
+    if str(out).endswith(("/", os.sep)):
+        raise SianmsError(f"--out: {out} names a folder; give the results file's name")
     db = NuScenesDB(dataroot, version)
     the_split = eval_split(db, split)
     gt, _ = ground_truth(db, the_split)
@@ -136,6 +148,9 @@ def main(argv: list[str] | None = None) -> int:
                              seed=args.seed, overwrite=args.overwrite)
     except SianmsError as error:
         print(f"error: {error}", file=sys.stderr)
+        return 2
+    except OSError as error:
+        print(f"error: {describe_os_error(error)}", file=sys.stderr)
         return 2
     print(f"wrote {count} boxes to {args.out}")
     return 0

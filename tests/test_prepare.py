@@ -279,6 +279,19 @@ def test_external_detections_file(config, dataroot, tmp_path):
     path.write_text(json.dumps([{"sample_data_token": front, "x1": -5.0, "y1": -5.0, "x2": width + 5.0,
                                  "y2": height + 5.0, "score": 0.5, "class": "car"}]))
     ExternalDetections(path, db, ("car",))  # reaching past every border is a detector's habit: accepted
+    # ... but not by more than the image: 1e9 px had run ROI Align out of memory, 1e308 became inf
+    for row, box in enumerate([(-1e9, -1e9, 1e9, 1e9), (10, 20, 1e308, 70), (-width - 1, 20, 60, 70)]):
+        path.write_text(json.dumps([{"sample_data_token": front, **dict(zip(("x1", "y1", "x2", "y2"), box)),
+                                     "score": 0.5, "class": "car"}]))
+        with pytest.raises(DataFormatError, match=rf"^{path}: record {front}: field 'x1/y1/x2/y2': row 0: box reaches "
+                                                  "more than its image's size past the image"):
+            ExternalDetections(path, db, ("car",))
+    for field in ("sample_data_token", "class"):  # numpy drops a trailing NUL: "car\0" had been read as "car"
+        row = {"sample_data_token": front, "x1": 10, "y1": 20, "x2": 60, "y2": 70, "score": 0.5, "class": "car"}
+        row[field] += "\u0000"
+        path.write_text(json.dumps([row]))
+        with pytest.raises(DataFormatError, match=rf"^{path}: field '{field}': row 0: expected a string without NUL$"):
+            ExternalDetections(path, db, ("car",))
 
 
 def test_readable_by_pandas_if_installed(cache):

@@ -59,6 +59,11 @@ class ExternalDetections:
         width, height = (sample_data.column(name)[rows].astype(np.float64) for name in ("width", "height"))
         _reject(self.path, tokens, (boxes[:, 2] <= 0) | (boxes[:, 3] <= 0) | (boxes[:, 0] >= width)
                 | (boxes[:, 1] >= height), "x1/y1/x2/y2", "box lies wholly outside its image")
+        # A box may reach past the border, as a detector's does, but not by more than the image
+        # itself: ROI Align samples a box's whole extent (1e9 px asked for 1e17 bytes), and the
+        # cache stores float32 (1e308 became inf).
+        _reject(self.path, tokens, (boxes[:, 0] < -width) | (boxes[:, 1] < -height) | (boxes[:, 2] > 2 * width)
+                | (boxes[:, 3] > 2 * height), "x1/y1/x2/y2", "box reaches more than its image's size past the image")
         keep = np.isin(names, classes)
         tokens, boxes, scores, names = tokens[keep], boxes[keep], scores[keep], names[keep]
         order = np.argsort(tokens, kind="stable")
@@ -120,9 +125,10 @@ def _read_columns(path: Path) -> dict[str, np.ndarray]:
     for name in FIELDS:
         values = records[name]
         if name in ("sample_data_token", "class"):
-            if not all(isinstance(v, str) for v in values):
-                first = next(i for i, v in enumerate(values) if not isinstance(v, str))
-                raise DataFormatError(path, f"row {first}: expected a string", field=name)
+            # numpy's string arrays drop trailing NULs: "car\x00" would be read as "car"
+            if not all(isinstance(v, str) and "\x00" not in v for v in values):
+                first = next(i for i, v in enumerate(values) if not (isinstance(v, str) and "\x00" not in v))
+                raise DataFormatError(path, f"row {first}: expected a string without NUL", field=name)
             out[name] = np.array(values, dtype=str) if values else np.zeros(0, dtype="<U1")
         else:
             if not (all(is_number(v) for v in values) and fits_float(values)):

@@ -109,8 +109,12 @@ def test_drop_everything_still_lists_every_sample(dataroot, tmp_path):
     ("noise=1", "error: --perturb: unknown key 'noise'; expected KEY=VALUE with KEY one of drop, translation, yaw, "
                 "size, velocity, false-positives"),
     ("drop=1.5", "error: --perturb: drop must be in [0, 1], got 1.5"),
-    ("yaw=-1", "error: --perturb: yaw must be >= 0, got -1"),
+    ("yaw=-1", "error: --perturb: yaw must be in [0, 6.28319], got -1"),
     ("yaw=x", "error: --perturb: yaw needs a number, got 'x'"),
+    # each had been a traceback (226 TiB asked for), or a warning and an error blamed on the results
+    ("false-positives=1e12", "error: --perturb: false-positives must be in [0, 100], got 1e+12"),
+    ("size=1000", "error: --perturb: size must be in [0, 3], got 1000"),
+    ("velocity=1e200", "error: --perturb: velocity must be in [0, 100], got 1e+200"),
 ])
 def test_a_bad_perturbation_is_named_and_nothing_is_written(dataroot, tmp_path, capsys, perturb, message):
     out = tmp_path / "never.json"
@@ -118,3 +122,19 @@ def test_a_bad_perturbation_is_named_and_nothing_is_written(dataroot, tmp_path, 
                               "--perturb", perturb]) == 2
     assert capsys.readouterr().err == message + "\n"
     assert not out.exists()
+
+
+@pytest.mark.parametrize("arguments, message", [
+    (["--seed", "-1"], "error: --seed must be between 0 and 2**63 - 1, got -1"),  # had been a traceback
+    (["--out", "{dataroot}/v1.0-mini/sample.json", "--overwrite"],  # had replaced the dataset's own table
+     "error: --out: {dataroot}/v1.0-mini/sample.json is inside the dataroot {dataroot}, which make_results.py only "
+     "reads; write it elsewhere"),
+    (["--out", "{tmp}/results/"], "error: --out: {tmp}/results/ names a folder; give the results file's name"),
+])
+def test_a_bad_seed_or_out_is_one_line_and_nothing_is_written(dataroot, tmp_path, capsys, arguments, message):
+    before = sorted(path.name for path in (dataroot / "v1.0-mini").iterdir())
+    arguments = [a.format(dataroot=dataroot, tmp=tmp_path) for a in arguments]
+    out = [] if "--out" in arguments else ["--out", str(tmp_path / "never.json")]
+    assert make_results.main(["--dataroot", str(dataroot), "--split", "mini_val", *out, *arguments]) == 2
+    assert capsys.readouterr().err == message.format(dataroot=dataroot, tmp=tmp_path) + "\n"
+    assert list(tmp_path.iterdir()) == [] and sorted(path.name for path in (dataroot / "v1.0-mini").iterdir()) == before
