@@ -28,6 +28,7 @@ from sianms_cli.io import read_json
 from sianms_cli.json_stream import fits_float, is_number
 from sianms_cli.nuscenes.classes import DETECTION_CLASSES
 from sianms_cli.nuscenes.loader import NuScenesDB
+from sianms_cli.nuscenes.tables import NUL
 
 FIELDS = ("sample_data_token", "x1", "y1", "x2", "y2", "score", "class")
 
@@ -126,8 +127,8 @@ def _read_columns(path: Path) -> dict[str, np.ndarray]:
         values = records[name]
         if name in ("sample_data_token", "class"):
             # numpy's string arrays drop trailing NULs: "car\x00" would be read as "car"
-            if not all(isinstance(v, str) and "\x00" not in v for v in values):
-                first = next(i for i, v in enumerate(values) if not (isinstance(v, str) and "\x00" not in v))
+            if not all(isinstance(v, str) and NUL not in v for v in values):
+                first = next(i for i, v in enumerate(values) if not (isinstance(v, str) and NUL not in v))
                 raise DataFormatError(path, f"row {first}: expected a string without NUL", field=name)
             out[name] = np.array(values, dtype=str) if values else np.zeros(0, dtype="<U1")
         else:

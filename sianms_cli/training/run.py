@@ -64,6 +64,7 @@ import torch
 
 from sianms_cli.data.cache import cache_fingerprint, complete_manifest
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
+from sianms_cli.json_stream import is_number
 from sianms_cli.io import (FolderBusyError, exclusive_lock, first_foreign_file, make_folder, partial_of, read_json,
                           write_bytes, write_json)
 
@@ -289,8 +290,7 @@ def load_checkpoint(path: str | Path, kind: str | None = None) -> Checkpoint:
         if row.get("epoch") != i + 1 or type(row["epoch"]) is not int:  # metrics.csv and the curves go by it
             raise DataFormatError(path, f"expected {i + 1}, got {row.get('epoch')!r}", field=f"history[{i}].epoch")
         for name, value in row.items():  # every figure a training writes is a number, or null where none
-            if not (value is None or isinstance(value, int) and not isinstance(value, bool)
-                    or isinstance(value, float)):
+            if not (value is None or is_number(value)):
                 raise DataFormatError(path, f"expected a number or null, got {type(value).__name__}",
                                       field=f"history[{i}].{name}")
     del data["format"]
