@@ -1,4 +1,4 @@
-"""Frustum PointNets inference: frustums in, boxes in the global frame out (models.md §1.2, §1.14).
+"""Frustum PointNets inference: frustums in, global boxes out (docs/methods.md#frustum-pointnets-inference).
 
 A frustum is a set of points in its frustum frame (a camera frame rotated about y by
 ``rot_angle``). Each is sampled to the trained number of points, uniformly with replacement;

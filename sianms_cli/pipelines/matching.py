@@ -1,6 +1,6 @@
 """siaNMS re-identification between contiguous cameras (paper §III-B), and its ground-truth oracle.
 
-For each contiguous camera pair (a, b) of a sample:
+For each contiguous camera pair (a, b) of a sample (docs/methods.md#matching-contiguous-cameras):
 
 1. **Candidates** are the detections of each camera that lie on the part of its image the
    other camera also sees (:func:`overlap_columns`: the image columns whose viewing rays,

@@ -1,4 +1,4 @@
-"""Which boxes each duplicate-handling method reports, from the per-scene boxes tables.
+"""Which boxes each duplicate-handling method reports (docs/methods.md#duplicate-handling).
 
 The per-scene stage (:mod:`.scene`) computes every box any method can report: one per kept
 detection (``single``) and one per siaNMS or oracle match. A method is then a selection:
@@ -32,7 +32,7 @@ SIANMS, HYBRID, GATED_SIANMS, ORACLE = "sianms", "hybrid", "gated-sianms", "orac
 METHODS = (VANILLA, AXIS_NMS, ROTATED_NMS, CIRCLE_NMS, SIANMS, HYBRID, GATED_SIANMS, ORACLE)
 MATCHERS = (SIANMS, GATED_SIANMS, ORACLE)  # the methods that report one box per kept cross-camera match
 IOU_METHODS = (AXIS_NMS, ROTATED_NMS)
-PAPER_NMS_IOU = 0.3  # §V-B: greedy axis-aligned BEV NMS at IoU 0.3
+PAPER_NMS_IOU = 0.3  # paper §V-B: greedy axis-aligned BEV NMS at IoU 0.3
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,22 +1,18 @@
 """Multi-view frustum aggregation of siaNMS (paper §III-C, eqs. 1-2, Fig. 3).
 
-A matched pair of detections, one in each camera of a contiguous pair, becomes one frustum:
+A matched pair of detections, one in each camera of a contiguous pair, becomes one frustum
+(docs/methods.md#multi-view-frustums):
 
-1. **Do the frustums overlap?** Each detection's frustum, seen from above, is the wedge from
-   its camera's centre through the left and right edges of its 2-D box, cut at the maximum
-   detection distance (depth in its own camera). If the two wedges do not intersect, the
-   match is a false positive and is dismissed (:func:`frustums_overlap`, a separating-axis
-   test on the two triangles).
-2. **The central axis** (:func:`multi_frustum_angle`): each frustum's central ray (through
-   its 2-D box centre) meets the circle of the maximum detection distance around the
-   reference camera's centre, at p_l and p_r; the axis runs from that centre to their
-   midpoint p_m. The paper leaves the circle's centre and which camera is "the camera"
-   implicit; here both are the reference camera's (the pair's first, clockwise), and the
-   second camera's ray starts from its own centre, so the small baseline between the two
-   cameras is respected.
-3. **The union frustum**: the LiDAR points inside either frustum (each tested in its own
-   camera, with the cache's depth window), in the reference camera's frame rotated about its
-   y axis so the central axis is +z, the frame Frustum PointNets expects.
+1. :func:`frustums_overlap`: each detection's frustum seen from above is the wedge from its
+   camera's centre through the left and right edges of its 2-D box, cut at the maximum
+   detection distance; a match whose two wedges do not intersect is dismissed.
+2. :func:`multi_frustum_angle`: each frustum's central ray meets the circle of the maximum
+   detection distance around the reference camera's centre at p_l and p_r; the axis runs
+   from that centre to their midpoint p_m. The reference camera is the pair's first
+   (clockwise); the second camera's ray starts from its own centre.
+3. :func:`pair_union`: the LiDAR points inside either frustum (each tested in its own camera,
+   with the cache's depth window), in the reference camera's frame rotated about its y axis
+   so the central axis is +z, the frame Frustum PointNets expects.
 
 Everything is done in the reference camera's frame, whose x-z plane is the bird's-eye view
 (camera y points down). Angles follow :func:`sianms_cli.geometry.frustum.frustum_angle`.

@@ -1,31 +1,21 @@
-"""Greedy per-class BEV non-maximum suppression: axis-aligned, rotated and circle (models.md §5).
+"""Greedy per-class BEV non-maximum suppression: axis-aligned, rotated and circle (docs/methods.md#nms-variants).
 
 All three take boxes as arrays in the nuScenes global frame (:mod:`sianms_cli.geometry.bev`:
 ``centers (N, 2)`` metres, ``sizes (N, 2)`` (width, length) metres, ``yaw (N,)`` radians of
 the length axis from +x, counter-clockwise), ``scores (N,)`` and ``labels (N,)`` (any values
 that compare equal within a class), and return the kept indices as an ``(K,) int64`` array
 in descending score order. Equal scores are visited lower index first (a stable sort), so
-the result is deterministic. Boxes of different labels never suppress each other (per-class
-NMS, MM3D ``box3d_multiclass_nms``; CenterPoint instead shares one NMS among the classes of
-a task head).
+the result is deterministic. Boxes of different labels never suppress each other. A kept box
+suppresses every later box of its class whose BEV IoU with it is *above* the threshold
+(strict, as torchvision ``ops.nms``), or for circle NMS whose centre lies within its radius.
 
-Greedy NMS visits the boxes by score; a visited box is kept unless an earlier kept box
-suppressed it, and then suppresses every later box of its class whose BEV IoU with it is
-*above* the threshold (strict, as torchvision ``ops.nms``), or for circle NMS whose centre
-lies within its radius. Only candidate pairs are tested: boxes are bucketed into a grid of
-cells at least as wide as the largest reach (the sum of two half-diagonals, or the circle
-radius), so a box meets only the boxes of its class in the 3 x 3 cells around it, and a
-rotated pair is clipped only when the centre distance is at most the sum of the
-half-diagonals (farther apart, the boxes cannot intersect).
-
-The loop is compiled with numba, because it pays: the greedy loop then visits only the
-pairs of kept boxes, rejects most of them with the separating-axis bound before clipping,
-and clips a pair 20-30x faster than the numpy Sutherland–Hodgman of
-:mod:`sianms_cli.geometry.bev`; bench/nms.py measures the whole NMS against numpy clipping of
-the candidate pairs alone, and against shapely. ``cache=True`` stores the machine code next
-to this file: the first call of a new process loads it (about half a second) instead of
-compiling (a few seconds, once per installed version). numba is imported with this module,
-which only ``sianms eval`` loads, so ``sianms --help`` stays fast.
+Only candidate pairs are tested: boxes are bucketed into grid cells at least as wide as the
+largest reach (the sum of two half-diagonals, or the circle radius), so a box meets only the
+boxes of its class in the 3 x 3 cells around it, and a rotated pair is clipped only when its
+separating-axis bound could pass the threshold. The loop is compiled with numba
+(``cache=True`` keeps the machine code next to this file, so only the first call after an
+install compiles); numba is imported with this module, which only ``sianms eval`` loads, so
+``sianms --help`` stays fast.
 """
 
 from __future__ import annotations
@@ -43,7 +33,7 @@ from sianms_cli.geometry.bev import axis_aligned_rectangles, check_boxes
 # MM3D `centerpoint_voxel01_second_secfpn_nus.py`) sets min_radius = [4, 12, 10, 1, 0.85,
 # 0.175] for the task heads [car], [truck, construction_vehicle], [bus, trailer], [barrier],
 # [motorcycle, bicycle], [pedestrian, traffic_cone], and `circle_nms` compares them with the
-# *squared* centre distance: "4" for cars is a 2.0 m radius, not 4 m (models.md §5.3).
+# *squared* centre distance: "4" for cars is a 2.0 m radius, not 4 m (docs/methods.md#circle-nms).
 CIRCLE_RADIUS_M: dict[str, float] = {
     "car": math.sqrt(4.0),
     "truck": math.sqrt(12.0),

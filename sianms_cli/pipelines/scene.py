@@ -1,28 +1,24 @@
 """One scene of `sianms eval`: 2-D detections and frustums in, every method's 3-D boxes out.
 
 Per sample (the cache's rows of one key frame), with no access to the ground truth except
-the oracle's identity and the ``correct`` column kept for scoring:
+the oracle's identity and the ``correct`` column kept for scoring
+(docs/methods.md#duplicate-handling):
 
-1. **Inputs**: the detections of Frustum PointNets' classes from the detector (not filled-in
-   ground truth), at least the training's minimum box height, with at least one frustum point.
+1. **Inputs**: the detector's detections of Frustum PointNets' classes (never filled-in
+   ground truth), at least the training's minimum box height, with a frustum point.
 2. **Single-camera boxes** (``kind = single``): Frustum PointNets on each cached frustum,
-   moved to the global frame (:mod:`.inference`). These are the vanilla pipeline's boxes; the
-   NMS variants filter them later.
-3. **siaNMS matches** (``kind = sianms``), per contiguous camera pair in clockwise order:
-   candidates on the image band the other camera also sees, embeddings, distances, the
-   optimal assignment of the allowed pairs (:mod:`.matching`); a detection matched in one
-   pair is not a candidate in the next. A match whose frustums do not overlap is kept as a
-   row with ``dismissed`` true and no box; every other match gets one box from its union
-   frustum along the multi-frustum axis (:mod:`.multiview`), scored with the higher of its
-   two 2-D scores (the original scores a 3-D box with its 2-D detection's confidence,
-   models.md §1.14).
-4. **Oracle matches** (``kind = oracle``): the same candidates paired by ground-truth instance,
-   then the same dismissal and aggregation.
+   moved to the global frame (:mod:`.inference`).
+3. **siaNMS matches** (``kind = sianms``), per contiguous camera pair in clockwise order
+   (:mod:`.matching`); a detection matched in one pair is not a candidate in the next. A
+   match whose frustums do not overlap is a row with ``dismissed`` true and no box; every
+   other match gets one box from its union frustum (:mod:`.multiview`), scored with the
+   higher of its two 2-D scores.
+4. **Oracle matches** (``kind = oracle``): the same candidates paired by ground-truth
+   instance, then the same dismissal and aggregation.
 
 The result is one Arrow table per scene (:data:`BOXES_SCHEMA`); which boxes each method
-reports is decided afterwards (:mod:`.methods`), so NMS settings can be swept without
-running a network again. The table's metadata ``sianms.timings`` holds the seconds the
-scene spent in each stage (:data:`STAGES`) and its sample count.
+reports is decided afterwards (:mod:`.methods`), so NMS settings can be swept without running
+a network again. The metadata ``sianms.timings`` holds the seconds per stage (:data:`STAGES`).
 """
 
 from __future__ import annotations
