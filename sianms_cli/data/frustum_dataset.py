@@ -1,40 +1,23 @@
 """Frustum PointNets training batches streamed from a prepared cache's ``frustums/`` shards.
 
-One shard (a scene) is in memory at a time, so memory stays flat in the cache's size.
-Each kept frustum gives:
+One shard (a scene) is in memory at a time, so memory stays flat in the cache's size. Each
+kept frustum gives (docs/methods.md#frustums):
 
 - ``points`` (N, C): N points drawn uniformly with replacement from the frustum's points,
-  every time it is read (FPN-TF ``provider``, models.md §1.11); xyz in the frustum frame and
-  the intensity divided by 255 (nuScenes' 0-255 to KITTI's 0-1 reflectance);
+  every time it is read; xyz in the frustum frame and the intensity divided by 255;
 - ``seg`` (N,): the cached per-point label (1 inside the associated box);
 - ``center`` (3,), ``heading``: the box in the frustum frame (F-PointNets heading);
 - ``lwh`` (3,): the box size as **(l, w, h)**. The cache stores nuScenes' (w, l, h); this is
-  the one place the order is converted (models.md §1.8's "order trap");
-- ``class_index``: the position of the cache's ``class`` in ``classes`` (also the size
-  cluster: one cluster per class).
+  the one place the order is converted;
+- ``class_index``: the position of the cache's ``class`` in ``classes`` (also the size cluster).
 
-Kept frustums (FPN-TF ``extract_frustum_data``): the class is one of ``classes``, there is an
-associated box, at least one point is inside it, and the 2-D box is at least
-``min_box_height`` pixels high (the detections' y2 - y1; 25 px as the original). The cache's
-``class`` is the detection class the 2-D detector (or the projected ground truth) gave; a
-"cyclist" is nuScenes' ``bicycle`` (the project's PAPER_CLASSES), and a motorcycle counts
-only when ``classes`` names it. The cache has no rider attribute, so a parked bicycle counts too.
-
-Union frustums (``--multiview``, :mod:`sianms_cli.data.multiview`) are files of the same
-columns, one per cache shard, in a folder of the run; :func:`iterate_batches` appends each
-shard's union frustums to its single ones, so both are sampled, batched and augmented alike,
-and flags them (``union``).
-
-Augmentation (training only, models.md §1.13), on whole batches:
-
-- random flip, p = 0.5: x -> -x for points and centre, heading -> π - heading;
-- random depth shift: z += s for points and centre, s = clip(N(0, 1) · 0.05 · d, ±0.2 d) with
-  d the box's horizontal distance. The original's code clips to [0.8 d, 1.2 d] and measures d
-  with the vertical axis (issue #104), a near-constant forward shift; this is the evident intent;
-- 2-D box jitter cannot be redone on cached points (the frustum was cut from the unjittered
-  box); instead the frustum frame is turned about y by a uniform angle within ±10 % of the
-  frustum's half-width angle (max |x/z| of its points), which moves the centre ray as a
-  ±10 % shift of the 2-D box's centre does. The heading changes by the same angle.
+Kept frustums: the class is one of ``classes``, there is an associated box, at least one point
+is inside it, and the 2-D box is at least ``min_box_height`` pixels high. A "cyclist" is
+nuScenes' ``bicycle``; the cache has no rider attribute, so a parked bicycle counts too. Union
+frustums (``--multiview``, :mod:`sianms_cli.data.multiview`) are appended to their shard's
+single ones and flagged ``union``. Augmentation (training only, on whole batches): random flip,
+random depth shift, and a turn of the frustum axis standing in for the original's 2-D box
+jitter (docs/methods.md#frustum-augmentation).
 """
 
 from __future__ import annotations
@@ -261,7 +244,15 @@ def sample_points(shard: ShardFrustums, rows: np.ndarray, num_points: int,
 
 
 def augment(batch: dict[str, np.ndarray], rng: np.random.Generator, augmentation: Augmentation) -> None:
-    """Apply the training augmentation (module docstring) to a batch, in place."""
+    """Apply the training augmentation to a batch, in place (docs/methods.md#frustum-augmentation).
+
+    - jitter: the frustum frame turns about y by a uniform angle within ±10 % of the frustum's
+      half-width angle (max |x/z| of its points), as a ±10 % shift of the 2-D box centre would
+      move the centre ray; the heading turns with it;
+    - flip, p = 0.5: x -> -x for points and centre, heading -> π - heading;
+    - shift: z += s for points and centre, s = clip(N(0, 1) · 0.05 · d, ±0.2 d), d the box's
+      horizontal distance (the original's evident intent; its code clips to [0.8 d, 1.2 d]).
+    """
     points, center, heading = batch["points"], batch["center"], batch["heading"]
     size = len(center)
     if augmentation.jitter:

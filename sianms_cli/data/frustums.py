@@ -1,4 +1,4 @@
-"""LiDAR frustums of 2D detections, as Frustum PointNets prepares them (models.md §1.1-1.2).
+"""LiDAR frustums of 2D detections, as Frustum PointNets prepares them (docs/methods.md#frustums).
 
 Points are in the camera frame (x right, y down, z forward, metres), then rotated about the
 camera y axis by ``rot_angle`` (:func:`sianms_cli.geometry.frustum.frustum_angle`) so the ray

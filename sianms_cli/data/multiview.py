@@ -1,44 +1,23 @@
 """Union frustums of the cache's cross-camera pairs: Frustum PointNets' ``--multiview`` training set.
 
-At inference siaNMS feeds Frustum PointNets, for each pair of matched detections in two
-contiguous cameras, the union of both LiDAR frustums rotated to the multi-frustum axis of
-eqs. (1)-(2) (:mod:`sianms_cli.pipelines.multiview`). With ``multiview`` the training set
-gets the same kind of frustum: for every row of the cache's ``pairs/`` shard (a reference
-detection in ``camera_a``, the positive in ``camera_b``, one instance) whose class is trained,
-the union frustum exactly as ``sianms eval`` builds it (:func:`~sianms_cli.pipelines.multiview.
-pair_geometry`, :func:`~sianms_cli.pipelines.multiview.pair_union`; the cache's LiDAR settings:
-sweeps and depth window), with:
+For every row of the cache's ``pairs/`` shard (a reference detection in ``camera_a``, the
+positive in ``camera_b``, one instance) whose class is trained, the union frustum exactly as
+``sianms eval`` builds a siaNMS match's (:mod:`sianms_cli.pipelines.multiview`, the cache's
+sweeps and depth window; docs/methods.md#multi-view-frustums), in the single frustums'
+conventions (:mod:`.frustums`): ``label`` 1 for the union points inside the reference
+detection's ground-truth box, tested in camera_a's frame; box centre and heading in the frame
+of the multi-frustum angle, which is the ``rot_angle``; raw intensity; ``score`` the higher of
+the two 2-D scores. A pair is skipped where a single frustum would be (class not trained, no
+box, a 2-D box under ``min_box_height``) and where a match is dismissed (wedges apart, empty
+union, no object point).
 
-- ``label``: 1 for the union points inside the reference detection's ground-truth box (the
-  cache's ``frustums/`` row: centre, size, rotation in camera_a's frame), tested in camera_a's
-  frame with :func:`~sianms_cli.geometry.boxes.points_in_boxes`, as the single frustums are;
-- ``box_center_frustum`` = ``rotate_to_frustum(box_center_cam, angle)`` and
-  ``box_heading_frustum`` = ``box_heading_cam - angle``, ``rot_angle`` = ``angle`` (the
-  multi-frustum angle in camera_a): the single frustums' conventions (:mod:`.frustums`);
-- ``intensity``: the raw LiDAR intensity (0-255, divided by 255 when read, as the cache's);
-- ``score``: the higher of the two 2-D scores (``sianms eval`` scores a merged box so).
-
-A pair is skipped, like a single frustum, when its class is not trained, the reference
-detection has no box, or either 2-D box is lower than ``min_box_height`` (at inference both
-detections passed that filter); and, like a dismissed match, when the two wedges do not
-overlap, the union is empty, or no union point is an object point.
-
-**Computed once per run.** The unions need the dataroot's LiDAR sweeps (the cache keeps only
-each detection's own frustum), so each cache shard's union frustums are computed once and
-written atomically to ``<folder>/<shard>.parquet`` (the run folder's ``multiview/``), in the
-cache's frustums layout (:data:`UNION_SCHEMA`). Every epoch reads them back beside the shard's
-single frustums, so a first run and a resumed run train on the same bytes and memory stays one
-shard. Each file's metadata holds a key of what made it (the cache shard files' SHA-256, the
-dataset fingerprint, the LiDAR settings, classes, minimum box height, ``max_distance``); a
-file whose key differs (an ``--overwrite`` run with other settings) is recomputed.
-
-Why once (measured on this project's 2-core CPU, shared and loaded, on a synthetic cache of
-16 samples and 35 pairs, nuScenes-like 34,700 points per sweep): building the unions took
-43 ms per pair with the key frame alone and 0.7-1.3 s per pair with 9 sweeps (every point of
-the sample is projected into both cameras for each pair), against about 60 ms to train on one
-frustum at 1,024 points (issue 9's 17 frustums/s); reading them back costs 1 ms (key frame)
-to 7 ms (9 sweeps) per union frustum per epoch. Recomputing them every epoch would multiply
-the epoch's time as soon as the cache has sweeps.
+**Computed once per run.** The unions need the dataroot's LiDAR sweeps, and every point of the
+sample is projected into both cameras for each pair, which costs more than training on the
+frustum; so each cache shard's unions are written atomically to ``<folder>/<shard>.parquet``
+(:data:`UNION_SCHEMA`) and read back every epoch, so a first run and a resumed run train on the
+same bytes. Each file's metadata holds a key of what made it (the shard files' SHA-256, the
+dataset fingerprint, the LiDAR settings, classes, minimum box height, ``max_distance``); a file
+whose key differs is recomputed.
 """
 
 from __future__ import annotations

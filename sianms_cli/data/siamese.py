@@ -1,32 +1,23 @@
-"""The siamese training and validation data: scene-by-scene streaming and the online pairing of §IV-B.
+"""The siamese training and validation data: scene-by-scene streaming and the online pairing of paper §IV-B.
 
 Streaming: a cache holds one detections file and one pairs file per scene (the shard), and
 every pairing of the paper stays inside one scene, so the reader loads one scene at a time
 (only the columns it needs) and memory stays flat in the cache's size.
 
-The online pairing (paper §IV-B), per epoch:
+The online pairing, per epoch (docs/methods.md#online-hard-negatives):
 
-1. The reference instances are the scene's instances with a row in ``pairs/`` (seen by two
-   contiguous cameras in one sample). Each epoch takes each once, in random order; for each,
-   a random *occurrence*: one of its pairs rows, in a random direction (either camera may be
-   the reference).
-2. The positive is the same instance's detection in the other camera of that pair (the
-   contiguous camera) in the same sample.
-3. The negative candidate set: another instance of the same scene, drawn at random among
-   those that have a detection in the contiguous camera's overlap with the reference camera
-   (``overlap_pairs`` holds the pair), and every such detection of it in the scene (any
-   sample). The training step scores them all and back-propagates the highest-loss one
-   (:func:`hardest_candidates`).
+1. each reference instance (a row in ``pairs/``: seen by two contiguous cameras in one sample)
+   once, in random order, with a random occurrence in a random direction;
+2. the positive: the same instance's detection in the contiguous camera, same sample;
+3. the negative candidates: another instance of the scene, drawn among those with a detection
+   in the contiguous camera's overlap with the reference camera (``overlap_pairs``), and every
+   such detection of it in the scene; the training step back-propagates the highest-loss one
+   (:func:`hardest_candidates`). Only where the overlap holds no other instance do the
+   candidates come from the whole contiguous camera (counted as ``negative_fallback``); an
+   occurrence whose contiguous camera sees no other instance is not drawn, so every
+   reference gets one positive and one negative: 50 : 50.
 
-   Real rigs overlap over a few degrees only, so an overlap can hold no other instance of
-   the scene. Then, and only then, the candidates come from the whole contiguous camera
-   (every detection of another instance there); such negatives are counted (the
-   ``negative_fallback`` figure). An occurrence whose contiguous camera sees no other
-   instance of the scene at all is not drawn, so every reference gets one positive and one
-   negative: 50 : 50.
-
-Detections without an instance (false positives) are never candidates: the paper's
-negatives are other *instances*.
+Detections without an instance (false positives) are never candidates.
 """
 
 from __future__ import annotations
