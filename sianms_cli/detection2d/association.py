@@ -1,7 +1,7 @@
 """Association of 2D detections with projected ground-truth boxes by 2D IoU.
 
 The paper associates labels with the predicted boxes by their IoU in the image plane
-(§IV-B); we solve it as an optimal assignment (maximum total IoU,
+(paper §IV-B); we solve it as an optimal assignment (maximum total IoU,
 ``scipy.optimize.linear_sum_assignment``) so a ground-truth box is never claimed twice and
 the result does not depend on the order of the detections.
 """

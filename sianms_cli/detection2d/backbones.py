@@ -1,13 +1,13 @@
-"""Backbones giving a stride-16 feature map of a camera image, for ROI features.
+"""Backbones giving a stride-16 feature map of a camera image, for ROI features (docs/methods.md#roi-features).
 
 - ``tiny``: a small seeded conv net (four 3x3 stride-2 convolutions, 64 channels), fast on a
   CPU; its features carry no learnt meaning but are deterministic, which is what tests and
   the synthetic default need.
 - ``resnet50-c4``: ResNet-50 up to ``layer3`` (= res4, 1,024 channels, stride 16) with
   torchvision's module names, loaded from a local torchvision detection checkpoint
-  (``backbone.body.*`` keys, reference models.md §3.2) or a plain torchvision ``resnet50``
+  (``backbone.body.*`` keys) or a plain torchvision ``resnet50``
   state dict; batch norms are frozen with eps = 0 as torchvision's COCO models. Input
-  preprocessing as torchvision's ``GeneralizedRCNNTransform`` (§3.3): RGB in [0, 1],
+  preprocessing as torchvision's ``GeneralizedRCNNTransform``: RGB in [0, 1],
   normalised with the ImageNet mean/std, resized by ``min(800 / short side, 1333 / long
   side)`` (bilinear), zero-padded to a multiple of 32.
 

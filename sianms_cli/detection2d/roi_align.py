@@ -1,7 +1,7 @@
 """ROI Align in pure torch with torchvision's semantics (``torchvision.ops.roi_align``).
 
 For each ROI and output bin, ``g_h x g_w`` points on a regular grid inside the bin are read
-by bilinear interpolation and averaged (reference models.md §2.1):
+by bilinear interpolation and averaged (docs/methods.md#roi-features):
 
 - ``offset = 0.5 if aligned else 0``; ``x1' = x1 * spatial_scale - offset`` (same for y1,
   x2, y2); ``roi_w = x2' - x1'``; without ``aligned`` roi_w and roi_h are clamped to >= 1;

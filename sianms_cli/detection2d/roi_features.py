@@ -1,7 +1,7 @@
 """ROI features of the 2D boxes of one image: backbone stride-16 map, then ROI Align.
 
 The paper's siamese network embeds each detection from the ROI-pooled features of the
-detector's backbone (§III-A). The features are stored as little-endian float16, the cache's
+detector's backbone (paper §III-A). The features are stored as little-endian float16, the cache's
 format (``sianms.roi_feature_dtype = "<f2"``), which halves the cache at no loss the
 embedding network can notice.
 """

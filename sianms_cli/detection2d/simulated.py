@@ -1,29 +1,23 @@
 """A simulated 2D detector: projected ground truth turned into what a real detector gives.
 
-Model, per class (:class:`ClassModel`), for each ground-truth box of one image:
+Model, per class (:class:`ClassModel`), for each ground-truth box of one image
+(docs/methods.md#the-simulated-detector):
 
-- **apparent size** ``h`` = clipped box height rescaled to a 1600-px-wide image (the
-  nuScenes camera), so the detector behaves the same whatever resolution the images were
-  stored at; distance acts mostly through ``h`` (a car is about 2,200/d px tall,
-  reference nuscenes.md §9.8-5) plus a mild explicit range term;
+- **apparent size** ``h`` = clipped box height rescaled to a 1600-px-wide image (the nuScenes
+  camera), so the detector behaves the same whatever resolution the images were stored at;
 - **detection probability**
   ``p = max_recall * sigmoid((h - height50) / height_slope) * (1 - occlusion)^occlusion_power
-  * (1 - truncation)^truncation_power * exp(-distance / range_m)``,
-  so misses rise with occlusion, truncation and distance;
+  * (1 - truncation)^truncation_power * exp(-distance / range_m)``;
 - **box jitter**: centre shifted by N(0, s·w), N(0, s·h), width and height scaled by
   exp(N(0, s)), with ``s = jitter + jitter_truncation·truncation + jitter_distance·distance/50``;
 - **score** ``sigmoid(score_offset + score_gain·v + N(0, score_noise))`` with
-  ``v = size term · (1 - occlusion) · sqrt(1 - truncation)``: scores follow visibility;
-- **false positives on the background**: Poisson(``fp_per_image``) boxes per image with a
-  log-normal height around ``fp_height`` (1600-px image), the class's aspect ratio, centres
-  in the band of the image where the road scene lies, rejected if they overlap any
-  ground-truth box by IoU > 0.2; scores Beta(``fp_score_a``, ``fp_score_b``).
+  ``v = size term · (1 - occlusion) · sqrt(1 - truncation)``;
+- **false positives**: Poisson(``fp_per_image``) boxes per image, log-normal height around
+  ``fp_height``, the class's aspect ratio, in the image band where the road scene lies,
+  rejected above IoU 0.2 with any ground-truth box; scores Beta(``fp_score_a``, ``fp_score_b``).
 
-Detections below ``score_threshold`` (torchvision's box_score_thresh, 0.05) are dropped.
-Every draw comes from the ``numpy.random.Generator`` passed in, in a fixed order, so the
-same generator state gives the same detections. The parameters were set once to meet the
-calibration targets in docs/prepare.md on the synthetic default, from published figures
-and stated assumptions, and are the same for every method downstream.
+Detections below ``score_threshold`` (0.05) are dropped. Every draw comes from the generator
+passed in, in a fixed order, so the same generator state gives the same detections.
 """
 
 from __future__ import annotations
