@@ -1,48 +1,22 @@
-"""`sianms train siamese`: the re-identification network of paper §III-B and §IV.
+"""`sianms train siamese`: the re-identification network of paper §III-B and §IV (docs/methods.md#sianms).
 
-Training: the encoder of :mod:`sianms_cli.models.siamese` on the cache's ROI features,
-batches of N reference instances paired online as §IV-B (:mod:`sianms_cli.data.siamese`):
-the candidates of each reference's negative instance are embedded without gradients, the
-highest-loss (nearest) one is kept, and eq. (6) is back-propagated through the reference,
-the positive and that negative (one positive and one negative per reference: 50 : 50).
-Adam, lr 1e-4 × 0.1 every 8 epochs, 25 epochs, batch 8 (the paper's defaults).
-``standardize`` (``--standardize``, off by default) makes the encoder standardise each
-input channel with the training cache's mean and std
-(:func:`~sianms_cli.data.siamese.feature_statistics`), kept as buffers in the checkpoint;
-on the ``tiny`` backbone's caches it changed the validation AUC by less than the spread
-over seeds (0.877 ± 0.007 with, 0.880 ± 0.005 without, demo settings, 3 seeds), so the
-default stays the paper's raw features.
+Training: the encoder of :mod:`sianms_cli.models.siamese` on the cache's ROI features, batches
+of N reference instances paired online (:mod:`sianms_cli.data.siamese`): the candidates of each
+reference's negative instance are embedded without gradients, the highest-loss (nearest) one
+is kept, and eq. (6) is back-propagated through the reference, the positive and that negative.
+Defaults are the paper's: Adam, lr 1e-4 × 0.1 every 8 epochs, 25 epochs, batch 8.
+``standardize`` (off by default, the paper's raw features) standardises each input channel
+with the training cache's statistics (:func:`~sianms_cli.data.siamese.feature_statistics`).
 
-Demo settings, measured on a synthetic mini (8 scenes, ``tiny`` backbone, ~120 reference
-instances per epoch, so ~15 steps per epoch at batch 8): ``--lr 1e-3 --epochs 12``, the
-rest the paper's. Validation AUC 0.880 (3 seeds, 0.876–0.885) against the plain
-baseline's 0.814, about 8 s per epoch on 2 CPU cores. With the paper's lr 1e-4 the same
-cache needs the full 25 epochs to get there (0.872, seed 0): the first decay at epoch 8
-leaves too few steps at the full rate.
+Validation each epoch (``val_cache``), per sample and contiguous camera pair: distance
+distributions and ROC AUC of every labelled cross-camera pair; the matching inference will do
+among the pair's overlap candidates, scored against instance identity at the ``dis_thr`` that
+maximises F1 (stored in the checkpoint for ``eval``); the same figures for a baseline of
+mean-pooled ROI features. Inference: :func:`load_encoder` and :func:`embed`.
 
-Inference (``eval``): :func:`load_encoder` reads a run's checkpoint into an encoder and its
-``dis_thr``; :func:`embed` turns ROI features into embeddings.
-
-Validation each epoch (``val_cache``), in every sample and every contiguous camera pair (A, B):
-
-- distances: every detection of A with an instance against every one of B with an instance;
-  positive when the instance is the same. Their distributions and the ROC AUC (positives
-  nearer than negatives) are reported.
-- matching, as inference will do it (paper §III-B): the candidates are the detections of A
-  and of B in the pair's overlap (``overlap_pairs``); an optimal assignment
-  (``scipy.optimize.linear_sum_assignment``) on their distances, pairs above ``dis_thr``
-  dismissed; a match is right when both detections have the same instance. Precision,
-  recall and F1 against the ground-truth pairs among the candidates, at the ``dis_thr``
-  that maximises F1 on the validation cache: stored in the checkpoint for ``eval``.
-- the same figures for a plain baseline: nearest neighbour on mean-pooled ROI features
-  (Euclidean distance of the C-vectors), its own best threshold.
-
-Scale: the caches stream scene by scene (:mod:`sianms_cli.data.siamese`), in ``streams``
-streams (default: one per process, :mod:`sianms_cli.data.streams`); under ``torchrun
---nproc-per-node K -m sianms_cli train siamese ...`` each rank reads only its streams' scenes
-and trains on its rows of every global batch with DistributedDataParallel (the loss scaled so
-the gradient is that of one process with the same streams), and rank 0 validates and writes
-the run folder.
+Scale: the caches stream scene by scene in ``streams`` streams (:mod:`sianms_cli.data.streams`);
+under ``torchrun`` each rank reads only its streams' scenes and trains its rows of every global
+batch with DistributedDataParallel; rank 0 validates and writes the run folder.
 """
 
 from __future__ import annotations
@@ -95,7 +69,7 @@ CURVES = (  # curves.png panels: (title, metrics.csv columns drawn together)
 
 @dataclass(frozen=True)
 class SiameseConfig:
-    """What `sianms train siamese` trains; defaults are the paper's (§IV-A, §IV-C)."""
+    """What `sianms train siamese` trains; defaults are the paper's (its §IV-A, §IV-C)."""
 
     cache: str
     val_cache: str | None = None
@@ -173,7 +147,7 @@ def _tensor(features: np.ndarray, device: torch.device) -> torch.Tensor:
 def train_step(model: torch.nn.Module, optimizer: torch.optim.Optimizer, batch: PairingBatch,
                config: SiameseConfig, device: torch.device, precision: MixedPrecision,
                world: int = 1) -> dict[str, float]:
-    """One step of §IV-B on a batch (this rank's share of it); the summed terms and the mining counts.
+    """One step of paper §IV-B on a batch (this rank's share of it); the summed terms and the mining counts.
 
     The candidates are scored with the current weights without gradients (no layer behaves
     differently in training, so the scores equal the training forward's), then only the
