@@ -1,7 +1,8 @@
 """The nuScenes detection metric on box tables: greedy matching, accumulation, AP and TP errors.
 
 Free functions over arrays, reproducing nuscenes-devkit 1.2.0 (``eval/detection/algo.py`` and
-``eval/common/utils.py``) number for number, without a Python object per box:
+``eval/common/utils.py``) number for number, without a Python object per box
+(docs/metrics.md#definitions):
 
 - :func:`accumulate` / :func:`accumulate_thresholds` give the devkit's 101-point
   :class:`MetricData` of one class at one or several matching thresholds;
@@ -9,20 +10,14 @@ Free functions over arrays, reproducing nuscenes-devkit 1.2.0 (``eval/detection/
 - the element-wise helpers (:func:`center_distance`, :func:`scale_iou`, :func:`yaw_diff`, ...)
   broadcast over arrays of boxes.
 
-Matching semantics (the devkit's, reference §5.4). Predictions of the class are taken in
-their table order, sorted by descending score; on equal scores the row *later* in the table
-goes first. In that order each prediction takes the nearest still-unmatched ground-truth box
-of its class in its sample (strict ``<`` on distance, so the first in list order wins a
-distance tie) and is a true positive iff that distance is ``< dist_th``.
-
-How it is fast. Matching is independent across samples, and a prediction can only take a
-ground-truth box closer than the threshold, so only *candidate pairs* (same sample, distance
-below the largest threshold) are built, all at once with numpy, and sorted by (processing
-rank, distance, ground-truth order). Greedy assignment then runs in rounds: round k resolves,
-in every sample at once, the k-th prediction of that sample that has a candidate, taking its
-first candidate not yet taken. Within a sample the predictions are thus resolved in exactly
-the devkit's order; the number of rounds is the largest number of such predictions in one
-sample, not the number of predictions.
+Matching is the devkit's: predictions in descending score, the row *later* in the table first
+on equal scores; each takes the nearest still-unmatched ground-truth box of its class in its
+sample (the first in list order on a distance tie) and is a true positive iff that distance is
+``< dist_th``. Only candidate pairs (same sample, distance below the largest threshold) are
+built, all at once, sorted by (processing rank, distance, ground-truth order); the greedy
+assignment then runs in rounds, round k resolving every sample's k-th prediction with a
+candidate, so within a sample the devkit's order holds and the loop count is the largest
+number of such predictions in one sample.
 """
 
 from __future__ import annotations
@@ -100,7 +95,7 @@ _NORM_FORMULAS = {
 def _norm_rounding() -> str:
     """The :data:`_NORM_FORMULAS` key that reproduces ``np.linalg.norm`` of 2-vectors here.
 
-    Probed on 512 seeded vectors, of which 34 to 52 tell each two formulas apart (4 ms); a BLAS that
+    Probed on 512 seeded vectors, of which 34 to 52 tell each two formulas apart; a BLAS that
     rounds like none of them gets the one that agrees most often.
     """
     probes = _norm_probes()

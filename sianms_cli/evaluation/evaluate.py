@@ -1,6 +1,6 @@
 """The detection evaluation of a results file on a split, per region: `sianms metrics`.
 
-The pipeline is the devkit's ``DetectionEval`` (reference §5.3), on arrays:
+The pipeline is the devkit's ``DetectionEval``, on arrays (docs/metrics.md#what-is-computed):
 
 1. the split's samples in sample-table order; the results must hold every one of them
    (a predefined split: exactly them; a custom split: extra samples are ignored);
@@ -11,15 +11,11 @@ The pipeline is the devkit's ``DetectionEval`` (reference §5.3), on arrays:
 5. per region (``all``, ``overlap``, ``non-overlap``, one camera pair), the region mask on
    GT and predictions alike, then matching, AP, TP errors, means and NDS.
 
-Every region follows the devkit's rule for a class without ground truth (``accumulate``
-returns ``DetectionMetricData.no_predictions()`` when ``npos == 0``): AP 0 and TP errors 1,
-kept in mAP, the mean TP errors and NDS. A region therefore scores exactly what the devkit
-scores on that region's boxes; :class:`~sianms_cli.evaluation.report.RegionMetrics` says
-which classes had no ground truth.
-
-:func:`run` is the command (a :class:`MetricsConfig`, an optional JSON output);
-:func:`evaluate` the same on a loaded dataset and results. Both return a
-:class:`~sianms_cli.evaluation.report.MetricsReport`.
+A class without ground truth in a region scores AP 0 and TP errors 1 and stays in mAP, the
+mean TP errors and NDS, as the devkit scores it; :class:`~sianms_cli.evaluation.report.
+RegionMetrics` says which classes had none. :func:`run` is the command (a
+:class:`MetricsConfig`, an optional JSON output); :func:`evaluate` the same on a loaded dataset
+and results. Both return a :class:`~sianms_cli.evaluation.report.MetricsReport`.
 """
 
 from __future__ import annotations

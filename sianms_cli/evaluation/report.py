@@ -1,9 +1,8 @@
 """The result of `sianms metrics` as a typed report that writes to JSON and reads back equal.
 
-:class:`MetricsReport` holds what was evaluated (dataroot, version, split, results file,
-the resolved detection configuration), how many boxes each filter removed, and one
-:class:`RegionMetrics` per region. It is written by `sianms metrics --out` and read back by
-later commands (``sianms report``), so the JSON is versioned and says what it is:
+:class:`MetricsReport` holds what was evaluated, how many boxes each filter removed, and one
+:class:`RegionMetrics` per region; `sianms metrics --out` writes it and later commands
+(``sianms report``) read it back, so the JSON is versioned (docs/metrics.md#the-json-report):
 
 .. code-block:: text
 
@@ -18,16 +17,8 @@ later commands (``sianms report``), so the JSON is versioned and says what it is
      "region_boxes": {name: {"gt": {class: count}, "pred": {class: count}}},
      "seconds": float}
 
-Each ``regions`` object is a devkit ``metrics_summary.json`` on its own (its ``cfg`` and
-``meta`` repeat the report's), so tools written for the devkit's output read it unchanged.
-The JSON is strict: the devkit's NaN TP errors (orientation, velocity and attribute of
-traffic cones, velocity and attribute of barriers) are written as ``null`` and read back
-as NaN. Classes, thresholds and regions keep their order (configuration order, request
-order); equal reports serialise to identical text.
-
-A class whose ``region_boxes`` GT count is 0 scores as the devkit scores a class without
-ground truth: AP 0 at every threshold and TP errors 1, counted in mAP, the mean TP errors
-and NDS (see :attr:`RegionMetrics.classes_without_gt`).
+The JSON is strict: the devkit's NaN TP errors are written as ``null`` and read back as NaN.
+Classes, thresholds and regions keep their order; equal reports serialise to identical text.
 """
 
 from __future__ import annotations

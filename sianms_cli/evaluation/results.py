@@ -1,6 +1,6 @@
 """Detection results files (the nuScenes submission format): read, validate, write.
 
-The format (nuScenes detection README; reference §5.8)::
+The format (docs/metrics.md#results-files)::
 
     {"meta": {"use_camera": bool, "use_lidar": bool, "use_radar": bool, "use_map": bool,
               "use_external": bool},
@@ -10,30 +10,14 @@ The format (nuScenes detection README; reference §5.8)::
            "detection_score": float, "attribute_name": str}
 
 everything in the global frame, metres, m/s. Reading is stricter than the devkit, so that a
-file that reads here evaluates there, and a mistake is named precisely. One
-:class:`ResultsFormatError` names the file, the sample token, the box index (0-based, within
-the sample's list) and the field:
-
-- the top level is an object with ``results`` (an object of lists) and ``meta`` (an object;
-  the five ``use_*`` flags, where present, are booleans); a sample token appears once;
-- at most ``max_boxes_per_sample`` boxes per sample (500 in the devkit configs);
-- every box has the 8 keys above (other keys, such as the devkit's optional ``num_pts`` and
-  ``ego_translation``, are ignored); ``sample_token`` equals the sample's key;
-- translation, size and rotation are finite numbers (JSON numbers, not strings or booleans);
-  every size is > 0; the rotation is a unit quaternion within ``QUATERNION_TOLERANCE``;
-- velocity holds two numbers, each finite or NaN (NaN: no estimate; the devkit skips it in
-  AVE); the score is a finite number in [0, 1];
-- ``detection_name`` is one of the 10 detection classes, ``attribute_name`` one of the 8
-  attributes or ``""``.
-
-Whether every sample of a split is present is checked against the split by the evaluation
-(:func:`sianms_cli.evaluation.evaluate.align_results`).
-
-Files are read in chunks and decoded one sample at a time
-(:class:`~sianms_cli.json_stream.JsonStream`), so memory stays near the size of the boxes as
-arrays (about 120 bytes per box), not of the decoded JSON. Files of ``SCAN_MIN_BYTES`` and
-more are first read by the compiled scanner of :mod:`~sianms_cli.evaluation.results_scan`
-(3x faster at 1.2 M boxes); whatever it does not accept is read here, which names the problem.
+file that reads here evaluates there; one :class:`ResultsFormatError` names the file, the
+sample token, the box index (0-based within the sample's list) and the field. Whether every
+sample of a split is present is checked by the evaluation
+(:func:`sianms_cli.evaluation.evaluate.align_results`). Files are read in chunks and decoded
+one sample at a time (:class:`~sianms_cli.json_stream.JsonStream`), so memory stays near the
+size of the boxes as arrays. Files of ``SCAN_MIN_BYTES`` and more are first read by the
+compiled scanner of :mod:`~sianms_cli.evaluation.results_scan`; whatever it does not accept is
+read here, which names the problem.
 """
 
 from __future__ import annotations
@@ -213,6 +197,15 @@ def read_results(path: str | Path, *, max_boxes_per_sample: int = MAX_BOXES_PER_
                  progress: Callable[[int], None] | None = None) -> Results:
     """Read and validate a results file.
 
+    The rules (docs/metrics.md#results-files): the top level is an object with ``results`` (an
+    object of lists) and ``meta`` (an object; its ``use_*`` flags, where present, booleans); a
+    sample token appears once, with at most ``max_boxes_per_sample`` boxes; every box has the 8
+    keys (others are ignored) and its ``sample_token`` equals the sample's key; translation,
+    size and rotation are finite JSON numbers, every size > 0, the rotation a unit quaternion
+    within ``QUATERNION_TOLERANCE``; velocity two numbers, each finite or NaN; the score finite
+    in [0, 1]; ``detection_name`` one of the 10 classes, ``attribute_name`` one of the 8
+    attributes or ``""``.
+
     Args:
         path: the JSON file.
         max_boxes_per_sample: the per-sample limit (the configuration's).
@@ -241,7 +234,7 @@ def read_results(path: str | Path, *, max_boxes_per_sample: int = MAX_BOXES_PER_
     meta: Any = None
     has_results = False
     # Decoding makes millions of box dicts and lists, none in a cycle: without the pause the
-    # collector rescans them: 1.17x slower at 1.2 M boxes (bench/results_reader.py).
+    # collector rescans them over and over (bench/results_reader.py shows the cost).
     with collector_paused(), JsonStream(path, chunk_chars=_CHUNK_CHARS, progress=progress) as stream:
         for key in stream.object_keys():
             if key == "results":

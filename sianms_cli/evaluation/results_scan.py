@@ -1,24 +1,21 @@
 """A compiled fast path for large results files in their plain form.
 
 :func:`~sianms_cli.evaluation.results.read_results` decodes with orjson, which builds a Python
-dict, 5 lists, 13 floats and 4 strings per box and then copies them into arrays: 4.7 s for a
-validation-sized file of 1.2 M boxes. This module reads such a file without making a Python
-object per box: a numba scanner walks the bytes once, checks the grammar, codes the class and
-attribute names and writes an Arrow string view of every number's text (no copy of the file);
-pyarrow converts the views (its string-to-double cast is correctly rounded, so every value is
-the one Python's ``float`` gives). Two threads share the work (the scanner and the cast release
-the GIL): one reads from the start, the other from a box list's end guessed near the middle of
-the file, and its work is kept only if the first thread's last sample ends exactly there.
-bench/results_reader.py: 1.8 s instead of 5.7 s on 2 cores (3.0-3.3x), the same table to the bit.
+dict, 5 lists, 13 floats and 4 strings per box and then copies them into arrays. This module
+reads such a file without a Python object per box: a numba scanner walks the bytes once,
+checks the grammar, codes the class and attribute names and writes an Arrow string view of
+every number's text (no copy of the file); pyarrow converts the views (its string-to-double
+cast is correctly rounded, so every value is the one Python's ``float`` gives). Two threads
+share the work (the scanner and the cast release the GIL): one reads from the start, the other
+from a box list's end guessed near the middle of the file, and its work is kept only if the
+first thread's last sample ends exactly there. bench/results_reader.py times it.
 
-The scanner only accepts the plain form the common toolkits write: the top-level object holds
-``meta`` (a flat object), then ``results``, and nothing else; every box has exactly the 8
-keys, once each, in any order; strings are ASCII without escapes; numbers are JSON numbers of
-at most 40 characters (no NaN). Whitespace may be anything JSON allows. Anything else — and any
-file that breaks a rule of the format — makes :func:`read_plain_results` return None, and the
-exact reader reads the file and names the problem. So this path changes how fast a file is
-read, never whether it is accepted, what its table holds, or what an error says (the results
-tests run every case through both paths).
+The scanner accepts only the plain form the common toolkits write: ``meta`` (a flat object),
+then ``results``, and nothing else; every box has exactly the 8 keys, once each, in any order;
+ASCII strings without escapes; numbers of at most 40 characters (no NaN). Anything else, and
+any file that breaks a rule of the format, makes :func:`read_plain_results` return None, and
+the exact reader reads the file and names the problem: this path changes how fast a file is
+read, never whether it is accepted, what its table holds, or what an error says.
 """
 
 from __future__ import annotations
@@ -566,7 +563,7 @@ def _joined(tables: list[np.ndarray]) -> np.ndarray:
 
     numpy asks the kernel for transparent huge pages on large arrays; where the kernel then
     compacts memory on the first touch (``defrag=madvise``, a common default), filling a
-    validation-sized table stalls: 0.25 s of a 2.1 s read here (bench/results_reader.py).
+    validation-sized table stalls for a noticeable share of the read (bench/results_reader.py).
     """
     count = sum(map(len, tables))
     if count == 0:
