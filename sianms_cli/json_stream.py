@@ -78,7 +78,7 @@ def collector_paused() -> Iterator[None]:
     """Pause the cyclic garbage collector.
 
     Decoding a table allocates millions of containers; the collector would rescan them over
-    and over (about 3x slower on a trainval-sized table), and none of them forms a cycle.
+    and over (several times slower on a trainval-sized table), and none of them forms a cycle.
     """
     was_enabled = gc.isenabled()
     gc.disable()

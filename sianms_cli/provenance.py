@@ -3,7 +3,7 @@
 The same code, seed and package versions give the same bytes only on one numeric platform:
 trainings differ between CPU makers (MKL picks its kernels by maker), and both the dataset and
 the trainings between AVX-512 and AVX2 kernels, which ``sianms`` avoids by running AVX2 ones
-everywhere (:mod:`sianms_cli.kernels`; README, "The CI gate"). A record of the CPU, the kernels
+everywhere (:mod:`sianms_cli.kernels`; docs/reproducibility.md). A record of the CPU, the kernels
 in use and the versions of the packages that do the arithmetic tells two differing outputs
 apart without rerunning either.
 """

@@ -5,12 +5,12 @@ metres, width and length in metres, yaw in radians, the angle of the length axis
 counter-clockwise. Box sets travel as ``centers (N, 2)``, ``sizes (N, 2)`` ordered
 (width, length) and ``yaw (N,)``, or stacked as ``boxes (N, 5)`` in the column order above.
 
-IoU is ``intersection / max(union, 1e-8)`` as in PCDet's ``iou_normal`` / ``boxes_iou_bev``
-(models.md §5.1-5.2), so boxes of zero area give 0, never NaN. Rotated intersections are
+IoU is ``intersection / max(union, 1e-8)`` as in OpenPCDet's ``iou_normal`` / ``boxes_iou_bev``,
+so boxes of zero area give 0, never NaN. Rotated intersections are
 Sutherland–Hodgman clipping of one rectangle by the four inner half-planes of the other plus
 the shoelace formula, for all pairs at once (no Python loop per box or pair).
 
-"Axis-aligned" BEV boxes exist in three meanings in the toolkits (models.md §5.1), named by
+"Axis-aligned" BEV boxes have three meanings in the toolkits (docs/methods.md#axis-aligned-nms), named by
 :data:`AXIS_MODES`:
 
 - ``ignore-yaw``: centre ± (length/2, width/2), as the box would be at yaw 0 (MM3D

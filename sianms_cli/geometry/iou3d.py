@@ -2,12 +2,12 @@
 
 A box is ``center (N, 3)``, ``lwh (N, 3)`` ordered (l, w, h) as F-PointNets (not nuScenes'
 w, l, h) and ``heading (N,)``, all in a camera or frustum frame (x right, y down, z forward):
-the length axis is R_y(heading) applied to +x, i.e. (cos h, 0, -sin h) (models.md §1.8-1.9).
+the length axis is R_y(heading) applied to +x, i.e. (cos h, 0, -sin h) (docs/methods.md#box-corners).
 The height runs along y, so the bird's-eye view is the (x, z) plane.
 
 Intersection volume = rotated BEV intersection area x overlap of the y intervals. The BEV
 intersection of two rectangles is Sutherland–Hodgman: rectangle A clipped by the four inner
-half-planes of rectangle B (models.md §5.2), all pairs at once; a convex polygon clipped by a
+half-planes of rectangle B, all pairs at once; a convex polygon clipped by a
 half-plane gains at most one vertex, so 4 vertices grow to at most 8.
 """
 

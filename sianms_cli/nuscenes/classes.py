@@ -1,7 +1,7 @@
 """nuScenes detection classes: the devkit's category -> detection class map, as data.
 
 The detection benchmark merges the 23 general categories into 10 classes and ignores the
-rest (``category_to_detection_name`` of nuscenes-devkit; shared/reference/nuscenes.md §5.2).
+rest (``category_to_detection_name`` of nuscenes-devkit; docs/metrics.md#what-is-computed).
 """
 
 from __future__ import annotations
@@ -31,5 +31,5 @@ DETECTION_CLASSES: tuple[str, ...] = (
 """The 10 detection classes in the devkit's order (DETECTION_NAMES)."""
 
 PAPER_CLASSES: tuple[str, ...] = ("car", "pedestrian", "bicycle")
-"""The paper's three classes (Car, Pedestrian, Cyclist; §V) as nuScenes detection classes:
+"""The paper's three classes (Car, Pedestrian, Cyclist; its §V) as nuScenes detection classes:
 "Cyclist" is not defined in the paper and maps to the devkit's ``bicycle``."""

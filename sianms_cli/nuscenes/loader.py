@@ -10,19 +10,14 @@ so a v1.0-trainval-sized set (1.2 M annotations, 2.6 M sample_data) fits in a fe
 - token references: resolved once at load to int64 row indices into the referenced table,
   -1 for ``""``; a list of tokens becomes an (N, K) array padded with -1.
 
-Tokens are looked up through :class:`~sianms_cli.nuscenes.token_index.TokenIndex`.
-
-Table files are decoded with orjson, large ones in runs of whole records
-(:func:`~sianms_cli.json_stream.array_pieces`) so that the parser never holds a whole 1 GB
-file as Python objects: a trainval-sized load peaks at about twice what the loaded tables hold.
+Tokens are looked up through :class:`~sianms_cli.nuscenes.token_index.TokenIndex`. Large table
+files are decoded with orjson in runs of whole records (:func:`~sianms_cli.json_stream.
+array_pieces`), so a trainval-sized load peaks at about twice what the loaded tables hold.
 
 Loading validates everything the toolkit relies on and stops at the first problem with one
-:class:`~sianms_cli.errors.DataFormatError` naming the file, the record token and the field.
-Beyond each field's kind it refuses values no real record holds, which would corrupt what is
-computed from them (:data:`_VALUE_RULES`): a box size of 0 or less, a negative point count, a
-rotation quaternion that is zero or too large or small to normalise, a coordinate or an
-intrinsic near float's limit. Fields outside the schema
-and optional extra tables (lidarseg, panoptic, image annotations) are ignored.
+:class:`~sianms_cli.errors.DataFormatError` naming the file, the record token and the field,
+including values no real record holds (:data:`_VALUE_RULES`). Fields outside the schema and
+optional extra tables (lidarseg, panoptic, image annotations) are ignored.
 """
 
 from __future__ import annotations

@@ -8,8 +8,8 @@ token strings instead, which is slower but exact.
 Why not ``pyarrow.compute.index_in``: it hashes the whole table again on every call, and the
 loader looks up each piece of a large table file separately (the ego poses of every 32 MB of
 sample_data.json: about 40 calls against 2.6 M ego_pose tokens on v1.0-trainval). There this
-index is about 10x faster; on one large lookup the two take the same time
-(``bench/token_index.py`` measures both).
+index is much faster; on one large lookup the two take the same time (``bench/token_index.py``
+measures both).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import numpy as np
 
 # Queries looked up at a time: a gathered candidate token takes 128 bytes (32 characters), so
 # a block's temporaries stay a few MB instead of 330 MB for 2.6 M queries; fresh pages for
-# those cost more than the lookup (a 2.6 M lookup takes 0.8 s in blocks, 1.2-3 s in one go).
+# those cost more than the lookup itself.
 _LOOKUP_BLOCK = 1 << 16
 
 

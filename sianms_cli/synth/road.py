@@ -116,7 +116,7 @@ class Route:
 
     def point(self, s: float) -> tuple[float, float, float]:
         """x, y and heading of the centreline at one arc length ``s`` (as :meth:`pose`, in plain
-        floats: ~50x faster for a single point, which the turning road users' poses need)."""
+        floats: far faster for a single point, which the turning road users' poses need)."""
         points, headings = self._segment_starts
         starts = self.starts
         i = min(max(int(np.searchsorted(starts, s, side="right")) - 1, 0), len(starts) - 1)
@@ -426,7 +426,7 @@ class Street:
 
 
 def _wrap(x: np.ndarray, period: float) -> np.ndarray:
-    """``x`` modulo ``period`` in [0, period): numpy's float ``%`` is ~20x slower than this."""
+    """``x`` modulo ``period`` in [0, period): numpy's float ``%`` is much slower than this."""
     return x - np.floor(x / period) * period
 
 
