@@ -1,6 +1,6 @@
 """Figures that describe a nuScenes-format dataset, for `sianms info`.
 
-The same figures are published for real nuScenes (``shared/reference/nuscenes.md`` §9), so
+The same figures are published for real nuScenes (docs/synthetic_world.md#nuscenes-figures), so
 any dataroot, synthetic or real, can be held against the real one line by line: the text
 report prints each figure beside its nuScenes value and source
 (:mod:`sianms_cli.reporting.nuscenes_reference`). The figures that decide how often one object

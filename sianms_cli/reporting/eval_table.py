@@ -17,9 +17,9 @@ from typing import Any, Mapping
 from sianms_cli.evaluation.report import MetricsReport
 from sianms_cli.pipelines.methods import IOU_METHODS, split_name
 
-TABLE_CLASS = "car"  # Table I is car only (§V-B: siaNMS matches cars)
+TABLE_CLASS = "car"  # Table I is car only (paper §V-B: siaNMS matches cars)
 REGIONS_SHOWN = (("all", "All"), ("overlap", "Overlap"))
-PAPER_TABLE_I = {  # §V, Table I: F-PointNets on nuScenes val, car
+PAPER_TABLE_I = {  # paper §V, Table I: F-PointNets on nuScenes val, car
     "All": {"vanilla": (45.5, 0.331, 18.4, 0.371), "axis-nms": (49.1, 0.330, 18.4, 0.367),
             "sianms": (51.1, 0.320, 18.2, 0.350)},
     "Overlap": {"vanilla": (37.9, 0.317, 18.6, 0.312), "axis-nms": (46.6, 0.312, 18.6, 0.306),

