@@ -1,7 +1,7 @@
 """The nuScenes v1.0 schema as data: the 13 tables, the kind of every field, the fixed vocabularies.
 
-Facts from the nuScenes schema (``docs/schema_nuscenes.md`` of nutonomy/nuscenes-devkit 1.2.0
-and the devkit's loader). Only fields real nuScenes has are listed; a record's fields
+Facts from the nuScenes schema (the schema document of nutonomy/nuscenes-devkit 1.2.0 and the
+devkit's loader). Only fields real nuScenes has are listed; a record's fields
 appear here in the order real table files use. The loader validates every table file against
 :data:`SCHEMAS` and the writer checks every record against it with :func:`check_value`.
 

@@ -1,36 +1,20 @@
-"""Camera renderer of the synthetic world: a ray caster with a depth buffer.
+"""Camera renderer of the synthetic world: a ray caster with a depth buffer (docs/synthetic_world.md#cameras).
 
 Pixel (u, v) looks along K^-1 [u + 0.5, v + 0.5, 1] in the OpenCV camera frame (x right,
 y down, z forward); rays are scaled so that the ray parameter is the camera z-depth. The
-ground plane z = 0 is intersected by every pixel; each part then casts only the rays of
-the pixels inside its projected bounding rectangle, and a depth buffer keeps the nearest
-surface. Shading: sun (Lambert, with cast shadows of the objects on every surface) plus a
-sky ambient term by normal, a Fresnel reflection of the sky (with its seeded cloud layer)
-and of the road on paint and glass (metallic paints tint theirs), procedural detail by
-material (facades with windows, shopfronts, doors, signs and awnings), distance haze.
-The scene's `Conditions` change the light: at night no sun, a dark sky with the city's
-glow, emitting lamps, street-light pools and lit windows; under rain an overcast sky, no
-hard shadows and a darker, mirroring wet road. The whole frame's radiance is then seen
-through the lens (night motion blur, sun glare and ghosts, rain drops), metered (auto
-exposure on top of the camera's fixed offset, white balance drifting per frame), and
-encoded by the camera's style (vignetting, tone curve, sRGB, noise).
+ground plane z = 0 is intersected by every pixel; each part then casts only the rays of the
+pixels inside its projected bounding rectangle, and a depth buffer keeps the nearest surface.
+Shading: sun (Lambert, cast shadows) plus sky ambient, Fresnel reflections of the clouded sky
+and the road on paint and glass, procedural facade detail, haze; the scene's `Conditions`
+change the light (night lamps and glow, rain's overcast sky and wet road). The frame's radiance
+then goes through the lens (night blur, sun glare, rain drops), is metered (auto exposure,
+white balance drifting per frame) and encoded by the camera's style.
 
-The generator renders six cameras per keyframe with numpy alone, so the work per pixel is
-kept small:
-
-* per-pixel values are float32, and positions are taken relative to the camera, where
-  float32 still resolves a tenth of a millimetre at a kilometre;
-* a part's rays need no per-pixel rotation: in the part's frame the ray of pixel (u, v)
-  is an affine function of (u, v) and the camera is one fixed point, both set up once
-  per part (`_PartRays`);
-* parts whose rectangle holds many pixels are cast as 2-D blocks on views of the image
-  buffers (no gathers, and a part hidden behind nearer scenery is skipped whole); the
-  many small ones are cast together as flat (pixel, part) pairs in cache-sized chunks;
-* shading and the camera style run over bands of rows small enough for their temporaries
-  to stay in cache, with colours and vectors channel-first (3, n);
-* surface detail, shadows and reflections are evaluated only where needed: shadow rays
-  start from sun-facing points inside the projection of a caster's sun-swept volume, the
-  ground shader sees only the pixels where the ground is the nearest surface.
+Per-pixel work is kept small with numpy alone: float32 values with positions relative to the
+camera; a part's rays as an affine function of (u, v) in the part's frame (`_PartRays`); large
+parts cast as 2-D blocks on views of the image buffers, small ones together as flat (pixel,
+part) pairs in cache-sized chunks; shading in bands of rows, channel-first; shadows,
+reflections and surface detail evaluated only where needed.
 """
 
 from __future__ import annotations

@@ -1,54 +1,19 @@
 """Street clutter: unannotated furniture and vegetation, in the images and the LiDAR.
 
-Real frustums are full of background: trees, poles, signs and bins stand between the
-camera and the objects and put points around them. `clutter_parts` places them along a
-street as owner -1 scenery, posed in the global frame; nothing here is annotated.
+Real frustums are full of background: trees, poles, signs and bins stand between the camera
+and the objects and put points around them. `clutter_parts` places them along a street as
+owner -1 scenery, posed in the global frame; nothing here is annotated. The densities and the
+design guides they come from are tabled in docs/synthetic_world.md#clutter.
 
-Where things stand (insets are metres from the kerb line into the pavement). Walkers in
-``world._place_pedestrians`` keep to lines 1.35, 2.35 and 3.35 m in (``world.WALKING_LINES``;
-a triad's middle walker between the first two), with boxes at most 0.47 m to either side
-(mean + 2 std half width), so nobody walks nearer the kerb than 0.88 m: the **kerb strip**
-(0-0.88 m in) is the furniture zone, as on real streets, where furniture stands 0.45-0.6 m
-behind the kerb face (AASHTO's 1.5 ft lateral offset). No ground-level part crosses the kerb;
-only parts wholly above `shapes.OVERHEAD_CLEARANCE` (4.8 m, above every vehicle box) reach
-over the carriageway: crowns, lamp arms and cross-arms. Hedges and fences stand in front of
-buildings, at the back of the pavement in the first 0.5 m of the setback (buildings are set
-back 0.5-4 m). Every item is finally tested against the road users' boxes over the whole
-scene and the buildings' footprints (`keep_clear`), and dropped if it touches one: parked
-bicycles lean across the kerb strip, standing people turn at the back of the pavement.
-
-Densities, per street side unless said otherwise:
-
-- tree: planted on 70 % of street sides, 8-15 m apart (the scene draws one spacing),
-  10 % of the pits empty. Los Angeles' Bureau of Street Services tree spacing guideline
-  asks for 25-40 ft (7.6-12 m); site plans often say "no more than 30 ft on centre".
-  Crowns start 2.6 m up over the pavement (pruned for 8 ft of pedestrian clearance) and
-  4.9 m over the road (14 ft for vehicles, lifted as arborists do); kept 6 m from street
-  lights and 3 m from hydrants, as the same guideline asks (20 ft, 10 ft).
-- street_light: 8-10 m poles spaced 3-4 times their height (24-40 m), the rule of thumb
-  of street-lighting design guides (spacing 2.5-3x height for 8-10 m poles in the Global
-  Street Design Guide; 3-4x for main roads); on both sides (staggered) in 60 % of
-  scenes, else one side, as guides do for streets narrower than about 1.5 pole heights.
-- utility_pole: overhead lines on one side in 50 % of Boston scenes, spans of 35-50 m
-  (urban distribution spans are 100-150 ft); none in Singapore, whose distribution
-  network is entirely underground.
-- sign: a regulatory or parking sign every 40 m on average (exponential gaps, at least
-  10 m; our estimate of city blocks, no published density found), plates 2.1 m up
-  (MUTCD 2A.18: 7 ft where people walk), facing the traffic on their side.
-- hydrant: one every 200 m per side on average, so about one every 100 m of street
-  (NFPA 1 / IFC Appendix C: average spacing 200-500 ft, closer for higher fire flows).
-- bin: one every 80 m on average (our estimate; guides ask for bins at corners and
-  along busy blocks).
-- traffic_light: a pedestal signal at each of the four corners of every junction, head
-  bottom 2.5 m up (MUTCD: at least 8 ft over the pavement), facing traffic approaching
-  the junction on that side (MUTCD 4D.11: at least two faces per approach).
-- bollard: rows of 2-3 at 1.4 m centres along the kerb at 40 % of junction corners (ADA
-  asks for at least 36 in, 0.91 m, of clear width between them).
-- hedge / fence: in front of 35 % of buildings (a quarter of those fenced), along the
-  frontage in 2.5 m panels (our estimate; front gardens and forecourts).
-
-Nothing goes within 12.5 m of a junction's centre line along the street except the
-corner furniture, so the crossing street and its pavements stay clear.
+Where things stand (insets are metres from the kerb line into the pavement). Walkers keep to
+``world.WALKING_LINES`` with boxes at most 0.47 m to either side (mean + 2 std half width), so
+nobody walks nearer the kerb than 0.88 m: that **kerb strip** is the furniture zone, furniture
+standing 0.45-0.6 m behind the kerb face. No ground-level part crosses the kerb; only parts
+wholly above `shapes.OVERHEAD_CLEARANCE` (4.8 m, above every vehicle box) reach over the
+carriageway. Hedges and fences stand at the back of the pavement, in the first 0.5 m of the
+setback. Every item is finally tested against the road users' boxes over the whole scene and
+the buildings' footprints (`keep_clear`), and dropped if it touches one. Nothing goes within
+12.5 m of a junction's centre line along the street except the corner furniture.
 """
 
 from __future__ import annotations

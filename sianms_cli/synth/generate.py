@@ -1,40 +1,23 @@
-"""`sianms synth`: write a synthetic dataset in the nuScenes v1.0 on-disk format.
+"""`sianms synth`: write a synthetic dataset in the nuScenes v1.0 on-disk format (docs/synthetic_world.md).
 
-Scenes are generated one after the other and streamed to disk: a scene is planned
-(street, traffic, ego drive), then every keyframe is sensed — the LiDAR sweeps since the
-previous keyframe and the keyframe's own sweep ray-cast, the six cameras rendered with a
-depth buffer — and its sensor files written; once the scene's last keyframe is done its
-table records are appended. Memory is therefore bounded by one scene, whatever the number
-of scenes.
+Scenes are generated one after the other and streamed to disk: a scene is planned (street,
+traffic, ego drive), then every keyframe is sensed (the LiDAR sweeps since the previous keyframe
+and the keyframe's own ray-cast, the six cameras rendered with a depth buffer) and its sensor
+files written; once the scene's last keyframe is done its table records are appended. Memory
+is therefore bounded by one scene. Nine non-key LiDAR sweeps lie between two keyframes, on one
+prev/next chain, each column fired from the ego pose of its own time and the points expressed
+in the sensor frame at the sweep's timestamp; ``--sensors none`` casts only keyframe sweeps
+(for ``num_lidar_pts``) and lists no sweep record.
 
-LiDAR: 20 Hz sweeps, so nine sweeps (``sweeps/LIDAR_TOP``, ``is_key_frame`` false, the
-sample_token of the following keyframe, as in nuScenes) between two keyframes; one LIDAR_TOP
-prev/next chain runs through sweeps and keyframes from the first keyframe to the last. Each
-column of a sweep fires at its own time from the ego pose of that time, moving objects are
-where they are then, and the points are expressed in the sensor frame at the sweep's
-timestamp (the time of its last column): motion-compensated as nuScenes sweeps are, while
-moving objects smear. ``--sensors none`` writes tables only, so it casts only keyframe sweeps
-(for ``num_lidar_pts``) and lists no sweep records: a record whose file is missing would
-break readers that follow the chain.
+Sensors use a true calibration that differs from the written record (:func:`rig.true_calibration`);
+``num_lidar_pts`` is counted from the written records exactly as the devkit counts it
+(:mod:`devkit_count`). Each scene draws from its own generator seeded by ``(seed, scene
+index)``, and night, rain and radar from streams of their own (:mod:`conditions`), so the same
+seed gives byte-identical files and a dry day scene does not depend on the weather code.
 
-Sensors are rendered and scanned with a true calibration that differs from the written
-calibrated_sensor record by a residual (see :func:`rig.true_calibration`), as a real car's
-is; ``num_lidar_pts`` is counted from the written records and the float32 file exactly as
-the devkit counts it (see :mod:`devkit_count`).
-
-Each scene draws from its own random generator seeded by ``(seed, scene index)``, so the
-same seed gives byte-identical files and a scene does not change when others are added.
-
-Each scene is at night or in rain at nuScenes's shares (:mod:`conditions`), drawn from a
-stream of its own: the description leads with nuScenes's words ("Night, rain, ..."), a night
-scene starts between civil dusk at its location and midnight local time, and a rainy scene's
-LiDAR loses more returns and gains raindrop returns (:func:`lidar.scan_lidar`) from streams of
-their own, so a dry day scene is the same as before scenes had conditions.
-
-The dataroot is built in a hidden staging folder beside ``out`` and published (renamed into
-place) only when complete, with a marker file, :data:`MARKER_NAME`, at its top. The marker
-is what lets a later run replace it: ``overwrite`` replaces only an empty folder or one that
-holds the marker and nothing but what synth writes, never a folder with anything else in it.
+The dataroot is built in a hidden staging folder beside ``out`` and renamed into place only
+when complete, with a marker file, :data:`MARKER_NAME`; ``overwrite`` replaces only an empty
+folder or one holding the marker and nothing but what synth writes.
 """
 
 from __future__ import annotations
@@ -100,7 +83,7 @@ SINGLE_POINT_SIGHTING_RANGE = 30.0
 """Metres from the ego within which one LiDAR point on an object is a sighting; beyond, a sighting
 takes two (our choice, set against v1.0-val before any method was run on it: inside the devkit's
 class ranges lie 71.8 % of the val boxes, 75 % of the pedestrians, 80 % of the cones, 74 % of the
-cars, reference §9.2-5). Counting every single point a sighting, as the annotation instructions
+cars; docs/synthetic_world.md#nuscenes-figures). Counting every single point a sighting, as the annotation instructions
 read (>= 1 LiDAR or radar point), followed small objects out to 80 m on one return and put only
 62 % of the boxes, 54 % of the pedestrians and 55 % of the cones of seed 11's 40 scenes in range;
 two points everywhere dropped the near, heavily occluded objects too (in-range boxes without a
@@ -822,11 +805,11 @@ def _annotation_records(plan: ScenePlan, frames: list[_Frame], sample_tokens: li
     radius: annotators keep an object through a temporary occlusion (interpolated tracks,
     hence some boxes with no point, as in nuScenes; nuscenes-devkit#313, #808, #831) but
     neither start a track before anything saw the object nor carry it on after the last
-    sighting (the annotation rule is >= 1 LiDAR or radar point, instructions_nuscenes.md;
+    sighting (the annotation rule is >= 1 LiDAR or radar point, nuScenes' annotator instructions;
     beyond ``SINGLE_POINT_SIGHTING_RANGE`` a sighting takes two points; radar returns, drawn
     here by :mod:`radar` from ``radar_rng``, are counted but sight nothing: see
     ``SINGLE_POINT_SIGHTING_RANGE``). Annotating the whole time an object was within 80 m
-    instead gave 30 % boxes without a point, nuScenes 12-19 % (reference §9.4-5).
+    instead gave 30 % boxes without a point, nuScenes 12-19 % (docs/synthetic_world.md#nuscenes-figures).
     """
     annotated = np.stack([f.annotated for f in frames])  # (K, N)
     points = np.stack([f.lidar_points for f in frames])

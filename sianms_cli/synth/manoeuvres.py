@@ -18,13 +18,13 @@ import numpy as np
 
 from sianms_cli.synth.road import LANE_WIDTH, Street
 
-EGO_SIZE = np.array([1.73, 4.08, 1.56])  # Renault Zoe w, l, h (nuScenes' car, reference §4)
+EGO_SIZE = np.array([1.73, 4.08, 1.56])  # Renault Zoe w, l, h (nuScenes' car)
 CLEARANCE = 0.3  # metres kept between bodies during a manoeuvre
 CHECK_STEP = 0.2  # seconds between the checked instants: 2 m at a 10 m/s speed difference
 EGO_LANE_CHANGE_SHARE = 0.35
 """Of the straight, moving scenes with two or more lanes each way (~1/3 of the scenes), so ~12 % of
 all scenes: with those that turn (`world.TURN_SHARE`), 60-70 % of the scenes are not simply going
-straight as `sianms info` measures it (README, *Still short*)."""
+straight as `sianms info` measures it (docs/synthetic_world.md#still-short)."""
 LANE_CHANGE_SHARE = 0.12  # moving vehicles on two-lane carriageways that change lane in a scene
 PULL_OUT_SHARE = 0.06  # cars parked at the kerb that pull out during the scene
 PULL_IN_SHARE = 0.04  # vehicles in the kerb-side lane that pull into the parking lane

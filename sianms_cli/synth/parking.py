@@ -5,7 +5,7 @@ behind rows, an aisle between) park cars.
 
 They put parked cars at headings that are neither along nor across the ego's road and at
 azimuths between ahead and abeam, where the cameras overlap: nuScenes' car orientations
-peak at the road's axes but are not confined to them (reference §9.4-1, nuScenes SM
+peak at the road's axes but are not confined to them (nuScenes paper, supplement
 Fig. 12). The rows behind the first put cars 10-30 m from the road's edge, where a car 20-50 m
 ahead or behind lies in the sectors two cameras share. Bay geometry follows common practice:
 2.4-2.6 m wide, 5 m deep, 6 m aisles.

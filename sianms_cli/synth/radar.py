@@ -1,21 +1,21 @@
 """How many radar returns fall on each object at a key frame: nuScenes' ``num_radar_pts``.
 
 The nuScenes car carries five Continental ARS 408 radars (front, both front corners facing
-sideways, both rear corners; reference §4, n015 extrinsics). Each scans a near field of ±45° out
-to 70 m and a far field of ±9° out to 250 m (Continental's ARS 408-21 figures). An object in any
-radar's field returns a number of clusters whose mean falls with range as nuScenes' Fig. 13-14
-maxima do (40 returns at 10 m, 10 at 50 m: mean ∝ range^-0.861), grows with the object's radar
-cross-section (vehicles far above people and cones), and shrinks with occlusion down to a floor:
-77 GHz waves reach a hidden car under and around the one in front, which is why nuScenes keeps
-annotations that hold radar returns and no LiDAR point. The count is Poisson about a mean that
-itself varies from reading to reading (gamma-distributed, mean 1: an object's radar cross-section
-swings by tens of dB with aspect and multipath), so a few readings bring many returns and many
-bring none, as nuScenes' do.
+sideways, both rear corners; the n015 extrinsics; docs/synthetic_world.md#radar-returns). Each
+scans a near field of ±45° out to 70 m and a far field of ±9° out to 250 m (Continental's
+ARS 408-21 figures). An object in any radar's field returns a number of clusters whose mean
+falls with range as nuScenes' Fig. 13-14 maxima do (40 returns at 10 m, 10 at 50 m: mean ∝
+range^-0.861), grows with the object's radar cross-section (vehicles far above people and
+cones), and shrinks with occlusion down to a floor: 77 GHz waves reach a hidden car under and
+around the one in front, which is why nuScenes keeps annotations that hold radar returns and no
+LiDAR point. The count is Poisson about a mean that itself varies from reading to reading
+(gamma-distributed, mean 1: an object's radar cross-section swings by tens of dB with aspect and
+multipath), so a few readings bring many returns and many bring none, as nuScenes' do.
 
 No radar files are written. The count decides which ground-truth boxes the devkit's evaluation
 keeps (``num_lidar_pts + num_radar_pts > 0``): in val, a fifth of the in-range boxes without a
-LiDAR point hold a radar return and stay (reference §9.4-5). Objects are sighted, and so
-annotated, by the LiDAR alone (``generate.SINGLE_POINT_SIGHTING_RANGE`` says why).
+LiDAR point hold a radar return and stay. Objects are sighted, and so annotated, by the LiDAR
+alone (``generate.SINGLE_POINT_SIGHTING_RANGE`` says why).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ RADAR_MOUNTS = np.array([
     (-0.562, 0.628, 174.0),  # RADAR_BACK_LEFT
     (-0.562, -0.618, -176.0),  # RADAR_BACK_RIGHT
 ])
-"""The Set A car's radar extrinsics (reference §4, n015 transcription; yaw only)."""
+"""The Set A (n015) car's radar extrinsics, as published in public code; yaw only."""
 NEAR_FIELD = (45.0, 70.0)  # half angle (degrees), range (m)
 FAR_FIELD = (9.0, 250.0)
 
@@ -55,7 +55,7 @@ as the kinds' radar cross-sections are (trucks and buses ~20 dBsm, cars ~10, two
 people ~0 to -5, plastic cones less; our estimate). RETURNS_SCALE sets the level."""
 RETURNS_SCALE = 3.0
 """With RETURNS_DISPERSION, set so that, as in val, 61.2 % of the boxes inside the devkit's class
-ranges hold no radar return (reference §9.4-5), while the annotations carry as many returns on
+ranges hold no radar return (docs/synthetic_world.md#nuscenes-figures), while the annotations carry as many returns on
 average as the mini's, 0.85 (nuscenes-devkit#219): 61.5 % and 0.84 on seed 11's 40 scenes."""
 RETURNS_DISPERSION = 0.9
 """Shape of the gamma law of each reading's mean (1: exponential). Poisson counts about fixed
@@ -65,7 +65,7 @@ near bus). Shape 1 with scale 2.75 gave 61.5 % and 0.79 on the 40 scenes."""
 OCCLUDED_EXPOSURE = 0.4
 """Share of the returns a wholly occluded object still gives (waves under and around the
 occluder). Set so that, of the in-range boxes without a LiDAR point, about as many hold a radar
-return as in val, (12.01 - 9.43) / 12.01 = 21 % (reference §9.4-5): 23 % on seed 11's 40 scenes
+return as in val, (12.01 - 9.43) / 12.01 = 21 %: 23 % on seed 11's 40 scenes
 (0.5 gave 19 % under Poisson counts, 25 % with the gamma swing)."""
 
 

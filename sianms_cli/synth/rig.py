@@ -1,10 +1,10 @@
 """The nuScenes sensor rig: six cameras and the top LiDAR with their real calibrations.
 
-Values are calibrated_sensor records of two public nuScenes logs (see
-``shared/reference/nuscenes.md`` §4): set A from an n015 vehicle (Singapore), set B from
+Values are calibrated_sensor records of two public nuScenes logs, as published in public code
+(docs/synthetic_world.md#rig): set A from an n015 vehicle (Singapore), set B from
 an n008 vehicle (Boston). Images are 1600 x 900; a scaled image keeps the optical
 geometry by scaling the intrinsic matrix. Camera trigger offsets relative to the LiDAR
-keyframe time come from a real n008 keyframe (reference §2): the spinning LiDAR fires
+keyframe time come from a real n008 keyframe: the spinning LiDAR fires
 each camera as its beam crosses the camera's field of view.
 """
 

@@ -17,12 +17,9 @@ of the route's lanes turn off into the crossing street, each on a path of its ow
 user that would meet anyone on its way through a junction arrives later, or is left out
 (``_drop_junction_conflicts``), so no two road users ever overlap.
 
-Class mix and density target the nuScenes trainval statistics collected in
-``shared/reference/nuscenes.md`` §9 (objects per keyframe: cars 14.4, pedestrians 6.4,
-barriers 4.5, cones 2.9, trucks 2.6, buses 0.5, bicycles 0.35, motorcycles 0.37; moving
-object speeds: car 6.6 m/s, pedestrian 1.3 m/s, bicycle 4 m/s; vehicle attributes
-parked / moving / stopped ≈ 52 / 30 / 17 %; ego at 16 km/h on average). ``sianms info``
-prints what a generated dataset actually holds.
+Class mix and density target nuScenes' published figures (objects per trainval keyframe, the
+mini's vehicle attributes, moving-object and ego speeds; docs/synthetic_world.md#nuscenes-figures).
+``sianms info`` prints what a generated dataset actually holds.
 """
 
 from __future__ import annotations
@@ -61,11 +58,11 @@ KEYFRAME_HZ = 2.0
 ANNOTATION_RADIUS = 80.0  # metres from the ego: nuScenes car annotations reach ~80 m
 ROUTE_MARGIN = 160.0  # route length before and after the ego's drive
 TURN_SHARE = 0.45
-"""Scenes whose ego turns at a junction. 73.9 % of nuScenes key frames are go-straight (reference
-§9.5-1, Li et al. arXiv 2312.03031), read as the planning benchmark's command rule, which `sianms
-info` applies; a later-found third-party count by that rule gives 86.7 % on val (README, *Still
-short*), and this share was left as set. A turning scene commands a turn in a third of its key frames (the
-approach and the turn itself; 34 % on seed 11's 40 scenes at 4abfa07), the other scenes in 4 %
+"""Scenes whose ego turns at a junction. 73.9 % of nuScenes key frames are go-straight (Li et
+al. arXiv 2312.03031), read as the planning benchmark's command rule, which `sianms info` applies;
+a later-found third-party count by that rule gives 86.7 % on val (docs/synthetic_world.md#still-short),
+and this share was left as set. A turning scene commands a turn in a third of its key frames (the
+approach and the turn itself; 34 % on seed 11's 40 scenes), the other scenes in 4 %
 (lane changes, the tighter curves), so even this share leaves the go-straight figure near 82 %;
 was 0.25, read as a share of scenes, which left it at 85 %. Not higher (our choice): objects seen
 before the corner and hidden by its buildings after it raise the share of annotations without a
@@ -76,9 +73,10 @@ TURN_ROAD_SPEED = 8.0  # m/s: the fastest traffic on a street with a turn
 ROADWORKS_SHARE = 0.65
 """Streets with a parking lane that have roadworks: 0.75 x 0.65 = 49 % of the scenes, fewer once
 those without room between junctions drop out. nuScenes over-samples construction sites
-(reference §9.6-4) and holds 4.45 barriers and 2.87 cones per trainval keyframe (§9.2-1); the
-share is set against those figures. A set's figures swing with which of its scenes get a site
-(seed 11's 40 scenes: 2.8 / 1.3; seed 2026's 10: 6.2 / 3.7); more sites raised the share of
+(nuScenes paper §2) and holds 4.45 barriers and 2.87 cones per trainval keyframe
+(docs/synthetic_world.md#nuscenes-figures); the share is set against those figures. A set's
+figures swing with which of its scenes get a site (seed 11's 40 scenes: 2.8 / 1.3; seed 2026's
+10: 6.2 / 3.7); more sites raised the share of
 annotations without a LiDAR point above nuScenes' 18.7 % (a far barrier or cone is mostly
 annotated without a point), so the share stopped at 0.5; once a far sighting took two points
 (generate.SINGLE_POINT_SIGHTING_RANGE) the far barriers and cones went and 0.65 restored the
@@ -86,7 +84,7 @@ near ones (120 scenes of seed 13: 5.14 barriers and 2.32 cones per keyframe)."""
 ROADWORKS_BOTH_SIDES = 0.3
 """Roadworks sites that close the parking lanes on both sides of the street (utility trenches
 and building sites facing each other; our choice, set with ROADWORKS_SHARE against the barrier
-and cone figures of §9.2-1)."""
+and cone figures of docs/synthetic_world.md#nuscenes-figures)."""
 ROADWORKS_LENGTH = (80.0, 160.0)
 """Metres of closed parking lane between the tapers (our choice). Shorter sites (40-90 m) in
 more scenes were tried and put more barriers beyond 30 m and more of them without a LiDAR point,
@@ -101,8 +99,8 @@ US MUTCD (Table 6C-3/6C-4) for closing a parking lane; 6-12 while a single far p
 sighting, 10-22 since far cones need two points (cones lost 40 % of their annotations, all far)."""
 CONSTRUCTION_VEHICLE_SHARE = 0.6
 """Taper ends with a construction vehicle parked beyond them: trainval holds 0.43 construction
-vehicles per keyframe (14,671 / 34,149, §9.1-1) and the paper's supplement shows they rarely
-move (§9.5-4), so they stand at the sites; the share is set against that figure (0.75 before
+vehicles per keyframe (14,671 / 34,149) and the nuScenes paper's supplement shows they rarely
+move (supplement Fig. 8), so they stand at the sites; the share is set against that figure (0.75 before
 sites grew more common with ROADWORKS_SHARE)."""
 
 KERB_PARKED_CATEGORIES = ("vehicle.car", "vehicle.truck", "vehicle.motorcycle", "vehicle.trailer",
@@ -110,7 +108,7 @@ KERB_PARKED_CATEGORIES = ("vehicle.car", "vehicle.truck", "vehicle.motorcycle", 
 KERB_PARKED_SHARES = (0.678, 0.128, 0.039, 0.114, 0.041)
 """What parks in a parking lane. Trailers left without their tractor and construction plant
 between jobs stand at the kerb, as the nuScenes supplement shows both classes mostly parked
-(Fig. 8; §9.5-4). Each share is set against trainval's objects per keyframe (§9.1-1: trucks
+(Fig. 8). Each share is set against trainval's objects per keyframe (docs/synthetic_world.md#nuscenes-figures: trucks
 2.59, trailers 0.73, construction vehicles 0.43, motorcycles 0.37) less what moves, stops or
 works at roadworks: the kerb-parked count a category still needs, over what a unit share parked
 on seed 13's 120 scenes once the parking lanes filled up (``KERB_GAP``, ``PARKED_SHARE``). The
@@ -118,7 +116,7 @@ shares set for the sparse kerb before, (0.44, 0.15, 0.07, 0.25, 0.09), put 1.39 
 keyframe on seed 11's 40 scenes once 0.55 x (busyness + 0.3) of the dense slots were taken (0.41
 on the sparse kerb)."""
 
-# (w, l, h) mean and std per category, nuScenes trainval (reference §9.3).
+# (w, l, h) mean and std per category, nuScenes trainval (list_categories(); docs/synthetic_world.md#nuscenes-figures).
 SIZE_STATS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
     "vehicle.car": ((1.95, 4.62, 1.73), (0.19, 0.46, 0.24)),
     "vehicle.truck": ((2.51, 6.93, 2.84), (0.45, 2.17, 0.84)),
@@ -179,11 +177,11 @@ and half right; nuScenes publishes no turning shares for its routes."""
 JUNCTION_CHECK_STEP = 0.05  # s: 1.1 m at the largest crossing speed difference (22 m/s)
 GIVE_WAY_TRIES = 3  # later arrivals tried before a junction road user is left out
 # Densities (mean gaps in metres, times 1 / busyness; the parked share of kerb slots), set so
-# that a 40-scene set holds trainval's objects per keyframe (reference §9.2-1: cars 14.4,
+# that a 40-scene set holds trainval's objects per keyframe (docs/synthetic_world.md#nuscenes-figures: cars 14.4,
 # pedestrians 6.4, trucks 2.6, buses 0.48, motorcycles 0.37, bicycles 0.35) once only the
 # keyframes between an object's first and last LiDAR sighting are annotated
 # (generate._annotation_records), and so that its vehicles are parked / moving / stopped as
-# nuScenes' (52.3 / 30.4 / 17.3 % on mini, §9.5-3; no trainval table); the vehicle mixes are in
+# nuScenes' (52.3 / 30.4 / 17.3 % on mini; no trainval table); the vehicle mixes are in
 # _vehicle_category. Until the kerb filled up, parking lanes held a vehicle every ~36 m
 # (0.27 x (busyness + 0.3) of slots 0.8 m + exp(4 m) apart) and 12 % of lanes were held up,
 # which left seed 11's 40 scenes at 34.1 % parked, 53.6 % moving and 12.3 % stopped.
@@ -213,7 +211,7 @@ PARKED_BICYCLE_GAP = 630.0  # between bicycles parked at one kerb (not times 1 /
 # The first rider and the first parked bicycle of a line start within one mean gap of the route's
 # start (a renewal process seen from a random point). Before, they started within a fixed 1,800 /
 # 2,400 m on routes of ~450 m, which held bicycles at 0.22 per keyframe whatever the gaps said;
-# trainval has 0.35, 59 % of them without a rider (mini attribute shares, §9.5-3).
+# trainval has 0.35, 59 % of them without a rider (mini attribute shares).
 WALKER_GAP = 68.0  # between walking parties (a walker alone or a group) on one pavement stream
 STANDING_GAP = 95.0  # between people standing at the back of a pavement
 MOVING_SPEED = 0.2  # m/s: below this a road user counts as standing still
@@ -1103,7 +1101,7 @@ def _place_roadworks_site(agents: AgentList, rng, street: Street, ego: EgoDrive,
     before = 2.5 * n_cones[0] + 5.0 + (plant_size[0][1] + 2.0 if plant[0] else 0.0)
     after = 2.5 * n_cones[1] + 5.0 + (plant_size[1][1] + 2.0 if plant[1] else 0.0)
     # The ego drives past the site: its middle lies on the ego's drive (scene selection picked
-    # scenes at construction sites, §9.6-4); a site wholly ahead or behind is seen only from afar,
+    # scenes at construction sites); a site wholly ahead or behind is seen only from afar,
     # where barriers and cones are annotated mostly without a LiDAR point.
     travel = ego.speed * SCENE_SECONDS + 0.5 * ego.accel * SCENE_SECONDS**2
     starts = ego.s0 - length / 2 + rng.uniform(0.0, max(travel, 1.0), ROADWORKS_TRIES)
