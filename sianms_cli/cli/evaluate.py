@@ -28,6 +28,10 @@ def eval_cli(
     sianms_classes: str = typer.Option("car", help="Classes siaNMS (and the oracle) match (the paper: car)."),
     dis_thr: Optional[float] = typer.Option(None, help="Embedding distance above which a pair is dismissed "
                                                        "[default: the siamese checkpoint's]."),
+    thresholds_from: Optional[Path] = typer.Option(None, help="A complete `sianms eval` folder of other scenes "
+                                                              "(a calibration split): dis_thr and each NMS family's "
+                                                              "best threshold are taken from its thresholds.json, not "
+                                                              "chosen on --split [default: --nms-sweep its sweep]."),
     max_distance: float = typer.Option(50.0, help="Maximum detection distance (m): the multi-frustum circle."),
     seed: int = typer.Option(0, help="Seed of the point sampling (same seed, same results)."),
     device: str = typer.Option("cpu", help="Torch device for the networks (auto, cpu, cuda, cuda:N)."),
@@ -51,7 +55,8 @@ def eval_cli(
         dataroot=str(dataroot), version=version, split=split, cache=str(cache), siamese=str(siamese),
         fpointnet=str(fpointnet), methods=methods, nms_sweep=nms_sweep, axis_mode=axis_mode,
         sianms_classes=tuple(name.strip() for name in sianms_classes.split(",") if name.strip()),
-        dis_thr=dis_thr, max_distance=max_distance, seed=seed, device=device, pictures=pictures)
+        dis_thr=dis_thr, max_distance=max_distance, seed=seed, device=device, pictures=pictures,
+        thresholds_from=None if thresholds_from is None else str(thresholds_from))
     with ProgressBar(quiet) as bar:
         result = run(config, out, overwrite=overwrite, progress=bar, workers=workers, shard=shard)
     manifest = result.manifest

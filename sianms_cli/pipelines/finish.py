@@ -1,9 +1,13 @@
-"""The finish stage of `sianms eval`: results files, metrics per method and region, re-identification quality.
+"""The finish stage of `sianms eval`: results files, metrics per method and region, re-identification quality,
+and the thresholds.
 
 Runs once every scene's boxes table exists (:mod:`.job`). Ground truth enters here only, to
 score: the metrics (``sianms metrics``' evaluator, the ``paper`` config) and the
 re-identification figures (the ``correct`` flag of each match, and the oracle's matches as
-the pairs there were to find).
+the pairs there were to find); and to choose the thresholds this split would choose
+(``thresholds.json``, :mod:`.calibration`), which only a later evaluation of other scenes
+(``--thresholds-from``) uses. With a calibration, each NMS family's ``best_nms`` in the table is
+the calibration's choice, not this split's.
 """
 
 from __future__ import annotations
@@ -17,7 +21,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from sianms_cli.data.cache import reading_shard
+from sianms_cli.data.cache import complete_manifest, reading_shard
 from sianms_cli.errors import DataFormatError
 from sianms_cli.evaluation.boxes import ATTRIBUTE, BOX_DTYPE, LABEL, NO_ATTRIBUTE
 from sianms_cli.evaluation.config import load_config
@@ -29,6 +33,8 @@ from sianms_cli.evaluation.results import results_from_boxes, write_results
 from sianms_cli.geometry.quaternion import yaw_to_quat
 from sianms_cli.io import write_json, write_text
 from sianms_cli.nuscenes.loader import NuScenesDB
+from sianms_cli.pipelines.calibration import (THRESHOLDS_FILE, Calibration, calibrated_best, choose_dis_thr,
+                                             thresholds_record, thresholds_used)
 from sianms_cli.pipelines.matching import pair_quality
 from sianms_cli.pipelines.methods import (GATED_SIANMS, HYBRID, MATCHERS, ORACLE, SIANMS, AllBoxes, kept_matches,
                                          match_kind, select, split_name)
@@ -190,9 +196,17 @@ def reidentification(boxes: AllBoxes, gated: bool = False) -> dict[str, dict[str
 
 
 def finish(db: NuScenesDB, config, out: Path, scene_paths: list[Path], timings: dict[str, float],
-           progress: Progress) -> tuple[dict[str, Any], list[str]]:
-    """Write every method's results, metrics and curves, the table and the re-identification figures;
-    return the table and the names of the pictures drawn."""
+           progress: Progress, *, resolved: dict[str, Any], models: Any, calibration: Calibration | None = None
+           ) -> tuple[dict[str, Any], list[str]]:
+    """Write every method's results, metrics and curves, the table, the re-identification figures and the
+    thresholds this split chooses; return the table and the names of the pictures drawn.
+
+    Args:
+        resolved: the evaluation's eval.json config (its ``dis_thr`` is the one the scenes used).
+        models: the loaded runs (:class:`~.job.Models`): the siamese encoder chooses this split's ``dis_thr``.
+        calibration: the ``--thresholds-from`` evaluation, whose NMS choices the table reports as each
+            family's best; None: this split's own.
+    """
     from sianms_cli.reporting.eval_pictures import draw_pr_curves
     from sianms_cli.reporting.eval_table import TABLE_CLASS, eval_table, table_markdown
 
@@ -226,6 +240,15 @@ def finish(db: NuScenesDB, config, out: Path, scene_paths: list[Path], timings: 
     bases = {split_name(m)[0] for m in methods}
     reid = reidentification(boxes, gated=GATED_SIANMS in bases) if bases & {*MATCHERS, HYBRID} else {}
     table = eval_table(reports, reid, counts, duplicates)
+    started = time.perf_counter()
+    cache_config = complete_manifest(config.cache)["config"]
+    dis_thr = choose_dis_thr(config.cache, cache_config, models.encoder, models.margins_midpoint)
+    own_choices = thresholds_record(resolved, cache_config, dis_thr, table)
+    timings["thresholds_s"] = time.perf_counter() - started
+    if calibration is not None:
+        table["best_nms"] = calibrated_best(table, calibration)
+    table["thresholds"] = thresholds_used(resolved, table, calibration, config.dis_thr is not None)
+    write_json(out / THRESHOLDS_FILE, own_choices)
     draw_pr_curves(out / "pr_curves.png", curves_at_tp, TABLE_CLASS, CURVE_REGIONS)
     write_json(out / "table.json", table)
     write_text(out / "table.md", table_markdown(table))

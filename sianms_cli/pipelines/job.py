@@ -30,7 +30,7 @@ import re
 import shutil
 import time
 from contextlib import closing
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterator
 
@@ -44,9 +44,11 @@ from sianms_cli.io import (atomic_file, exclusive_lock, make_folder, partial_of,
                            try_lock, write_json)
 from sianms_cli.nuscenes.fingerprint import dataset_fingerprint
 from sianms_cli.nuscenes.loader import NuScenesDB
+from sianms_cli.pipelines.calibration import Calibration, check_calibration, margins_midpoint, read_calibration
 from sianms_cli.pipelines.finish import finish
 from sianms_cli.pipelines.inference import FPointNetPredictor
-from sianms_cli.pipelines.methods import IOU_METHODS, METHODS, parse_methods, parse_thresholds
+from sianms_cli.pipelines.methods import (HYBRID, IOU_METHODS, MATCHERS, METHODS, parse_methods, parse_thresholds,
+                                          split_name)
 from sianms_cli.pipelines.scene import SceneEvaluator, SceneSettings
 from sianms_cli.prepare.job import parse_shard, split_scenes
 from sianms_cli.processes import TASK_TORCH_THREADS, task_torch_threads, worker_pool
@@ -64,7 +66,7 @@ KIND = "sianms-eval"
 # The files the finish stage writes beside eval.json (curves.json: before metrics_details_<method>.json).
 _METHOD = "|".join([*map(re.escape, METHODS), *(rf"{re.escape(name)}@[0-9.e+-]+" for name in IOU_METHODS)])
 _EVAL_FILE = re.compile(rf"(?:results|metrics|metrics_details)_(?:{_METHOD})\.json|table\.json|table\.md|pr_curves\.png"
-                        r"|curves\.json")
+                        r"|curves\.json|thresholds\.json")
 
 
 @dataclass(frozen=True)
@@ -86,6 +88,7 @@ class EvalConfig:
     seed: int = 0
     device: str = "cpu"
     pictures: int = 4  # samples drawn in bird's-eye view (the most ground-truth duplicates first)
+    thresholds_from: str | None = None  # a calibration evaluation folder: every threshold from its split (.calibration)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "sianms_classes", tuple(self.sianms_classes))
@@ -100,6 +103,10 @@ class EvalConfig:
             raise SianmsError(f"--sianms-classes: {error}") from None
         if self.dis_thr is not None and not (math.isfinite(self.dis_thr) and self.dis_thr > 0):
             raise SianmsError(f"--dis-thr must be a finite number > 0, got {self.dis_thr}")
+        if self.thresholds_from is not None and self.dis_thr is not None:
+            raise SianmsError("--dis-thr: --thresholds-from sets dis_thr from the calibration split; give one of them")
+        if self.thresholds_from is not None and not str(self.thresholds_from).strip():
+            raise SianmsError("--thresholds-from: must not be empty")
         if self.pictures < 0:
             raise SianmsError(f"--pictures must be >= 0, got {self.pictures}")
         if not (math.isfinite(self.max_distance) and self.max_distance > 0):
@@ -154,7 +161,8 @@ class Models:
     Attributes:
         predictor: Frustum PointNets; encoder: the siamese encoder; dis_thr: the matching
         threshold (``--dis-thr`` or the siamese run's); siamese_sha256, fpointnet_sha256: the
-        checkpoints' fingerprints of content (:func:`~sianms_cli.training.run.checkpoint_fingerprint`).
+        checkpoints' fingerprints of content (:func:`~sianms_cli.training.run.checkpoint_fingerprint`);
+        margins_midpoint: where the siamese run's threshold search starts (:func:`.calibration.choose_dis_thr`).
     """
 
     predictor: FPointNetPredictor
@@ -162,6 +170,7 @@ class Models:
     dis_thr: float
     siamese_sha256: str
     fpointnet_sha256: str
+    margins_midpoint: float
 
 
 def load_models(config: EvalConfig) -> Models:
@@ -175,7 +184,8 @@ def load_models(config: EvalConfig) -> Models:
     encoder, dis_thr = encoder_from_checkpoint(siamese, siamese_path, device)
     return Models(predictor=FPointNetPredictor(fpointnet, fpointnet_path, device), encoder=encoder,
                   dis_thr=float(config.dis_thr if config.dis_thr is not None else dis_thr),
-                  siamese_sha256=checkpoint_fingerprint(siamese), fpointnet_sha256=checkpoint_fingerprint(fpointnet))
+                  siamese_sha256=checkpoint_fingerprint(siamese), fpointnet_sha256=checkpoint_fingerprint(fpointnet),
+                  margins_midpoint=margins_midpoint(siamese.config, dis_thr))
 
 
 def check_feature_shape(cache: Path, encoder_shape: tuple[int, int, int], siamese: str) -> None:
@@ -192,19 +202,23 @@ def check_feature_shape(cache: Path, encoder_shape: tuple[int, int, int], siames
                               "--roi-size of its training cache", field="config.roi_size")
 
 
-FINISH_FIELDS = ("methods", "nms_sweep", "axis_mode", "pictures")  # decide only which boxes each method reports
+# Fields that decide only which boxes each method reports (the calibration's dis_thr is in "dis_thr").
+FINISH_FIELDS = ("methods", "nms_sweep", "axis_mode", "pictures", "thresholds_from")
 
 
-def resolved_config(config: EvalConfig, db: NuScenesDB, scenes: list[str], models: Models) -> dict[str, Any]:
-    """The config as eval.json records it: inputs by content (dataset, cache, checkpoints), so the
-    same inputs in other folders give the same config.
+def resolved_config(config: EvalConfig, db: NuScenesDB, scenes: list[str], models: Models,
+                    calibration: Calibration | None = None) -> dict[str, Any]:
+    """The config as eval.json records it: inputs by content (dataset, cache, checkpoints, the calibration's
+    thresholds.json), so the same inputs in other folders give the same config.
 
     The fields of :data:`FINISH_FIELDS` do not change the scenes' boxes tables, so an
     ``--overwrite`` that changes only them keeps the scenes and redoes the finish stage.
     """
     data = asdict(config)
-    for name in ("dataroot", "cache", "siamese", "fpointnet", "device"):
+    for name in ("dataroot", "cache", "siamese", "fpointnet", "device", "thresholds_from"):
         del data[name]
+    if calibration is not None:  # absent otherwise, so evaluations from before the flag keep their config
+        data["thresholds_from"] = calibration.identity
     data.update(sianms_classes=list(config.sianms_classes), dis_thr=models.dis_thr, methods=list(config.method_names),
                 dataset_sha256=dataset_fingerprint(db.table_root), split_scenes=scenes,
                 cache_sha256=cache_fingerprint(complete_manifest(config.cache)),
@@ -427,9 +441,18 @@ def run(config: EvalConfig, out: str | Path, *, overwrite: bool = False, progres
     names = [name for _, name in scenes]
     cache = Path(config.cache)
     cache_config = cache_settings(cache, db, config.split, names)
+    calibration = None if config.thresholds_from is None else read_calibration(config.thresholds_from)
+    if calibration is not None and config.nms_sweep is None:  # the calibration's sweep holds each family's choice
+        config = replace(config, nms_sweep=calibration.chosen_on["nms_sweep"])
     models = load_models(config)
     check_feature_shape(cache, models.encoder.feature_shape, config.siamese)
-    resolved = resolved_config(config, db, names, models)
+    resolved = resolved_config(config, db, names, models, calibration)
+    if calibration is not None:
+        check_calibration(calibration, resolved, cache_config,
+                          matchers_evaluated=any(split_name(m)[0] in (*MATCHERS, HYBRID) for m in config.method_names))
+        if calibration.dis_thr is not None:
+            models = replace(models, dis_thr=calibration.dis_thr)
+            resolved["dis_thr"] = models.dis_thr
     settings = scene_settings(config, cache_config, models.dis_thr)
     with exclusive_lock(out / LOCK, what=str(out), blocking=True):
         if claim_output(out, resolved, overwrite):
@@ -454,7 +477,8 @@ def run(config: EvalConfig, out: str | Path, *, overwrite: bool = False, progres
         return result
     with exclusive_lock(out / LOCK, what=str(out), blocking=True):
         timings = {"scenes_s": scenes_seconds}
-        result.table, pictures = finish(db, config, out, [scene_path(out, name) for name in names], timings, progress)
+        result.table, pictures = finish(db, config, out, [scene_path(out, name) for name in names], timings, progress,
+                                        resolved=resolved, calibration=calibration, models=models)
         result.manifest = write_marker(out, resolved, {"timings": timings, "pictures": pictures}, complete=True)
     return result
 
