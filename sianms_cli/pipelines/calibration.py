@@ -1,31 +1,22 @@
 """Thresholds chosen on a calibration split, away from the split a table reports.
 
-Every threshold of `sianms eval` is a choice made on labelled data: siaNMS's ``dis_thr`` and
-the IoU of each NMS family. Chosen on the split the table reports, they favour whichever method
-has the most freedom. So every evaluation writes ``thresholds.json``, the choices **its own
-split** makes (:func:`thresholds_record`), and an evaluation given ``--thresholds-from CALIB``
-(the folder of a complete evaluation of *other scenes* of the same world, detector and
-networks) takes every threshold from CALIB's file instead:
+Every threshold of `sianms eval` (siaNMS's ``dis_thr``, the IoU of each NMS family) is a choice
+made on labelled data, and chosen on the split the table reports it favours whichever method has
+the most freedom (docs/methods.md#thresholds-from-a-calibration-split). So every evaluation
+writes ``thresholds.json``, the choices **its own split** makes (:func:`thresholds_record`), and
+an evaluation given ``--thresholds-from CALIB`` (a complete evaluation of *other scenes* of the
+same world, detector and networks) takes every threshold from CALIB's file instead:
 
-- ``dis_thr`` (siaNMS, the hybrid, gated siaNMS): the criterion `sianms train siamese` uses on
-  its ``--val-cache`` (:func:`choose_dis_thr`), run on the calibration split's cache: the
-  threshold that maximises the matching F1 against ground-truth identity, among each camera
-  pair's overlap candidates. Not overlap car AP: ``dis_thr`` changes the assignment itself, so
-  each candidate threshold would need the whole scene stage again, and an AP maximum over a few
-  hundred overlap cars follows their noise; the F1 over every candidate pair is smooth, and it
-  is the criterion the paper's threshold comes from.
-- each IoU NMS family (Axis-NMS, rotated NMS): the variant with the best car AP over the
-  calibration split, as ``best_nms`` of its table.json (the sweep's own criterion). The family
-  reported "at its best threshold" is then at its best *on the calibration split*, the fair
-  baseline.
-- circle NMS has no threshold (a radius per class); the hybrid's NMS stays the paper's IoU 0.3:
-  it is part of the method's definition.
+- ``dis_thr``: the matching F1 criterion of `sianms train siamese`'s validation
+  (:func:`choose_dis_thr`), run on the calibration split's cache;
+- each IoU NMS family: the variant with the best car AP over the calibration split, as
+  ``best_nms`` of its table.json; circle NMS has no threshold and the hybrid's NMS stays the
+  paper's IoU 0.3.
 
 The calibration is refused (one error line) when it shares a scene with the evaluated split, or
 was made on another dataset, detector, cache settings or networks (:func:`check_calibration`).
-The evaluation records where each threshold came from (:func:`thresholds_used`, table.json's
-``thresholds``), the calibration by its path, split and fingerprint (the SHA-256 of its
-thresholds.json).
+The evaluation records where each threshold came from (:func:`thresholds_used`), the
+calibration by its path, split and the SHA-256 of its thresholds.json.
 """
 
 from __future__ import annotations
