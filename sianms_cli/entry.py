@@ -7,7 +7,8 @@ been written yet. From then on :func:`sianms_cli.cli.main` handles them.
 
 Before numpy or torch loads, the arithmetic libraries are asked for their AVX2 kernels
 (:mod:`sianms_cli.kernels`), so a seed gives the same bytes on AVX2 and AVX-512 machines; the
-command's worker processes and torchrun ranks inherit the setting.
+trainings run the CPU's own kernels instead (:func:`~sianms_cli.kernels.native_by_default`).
+The command's worker processes and torchrun ranks inherit the setting.
 """
 
 import os
@@ -23,9 +24,11 @@ def _end_while_starting(signum: int, frame: object) -> None:
 def main() -> None:
     signal.signal(signal.SIGINT, _end_while_starting)
     signal.signal(signal.SIGTERM, _end_while_starting)
-    from sianms_cli.kernels import use_avx2_kernels
+    import sys
 
-    use_avx2_kernels()
+    from sianms_cli.kernels import native_by_default, use_avx2_kernels
+
+    use_avx2_kernels(native_default=native_by_default(sys.argv[1:]))
     from sianms_cli.cli import main as command_line
 
     command_line()

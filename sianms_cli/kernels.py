@@ -15,6 +15,13 @@ inherit them.
 The CPU maker still matters: MKL picks kernels by maker, and its reproducible mode
 (``MKL_CBWR``) is documented for Intel CPUs only.
 
+The trainings are the exception (:func:`native_by_default`): ``sianms train`` runs each
+library's own kernels unless :data:`NATIVE_SWITCH` is 0. Under AVX2 kernels the CPU's
+AVX-512 and bfloat16 instructions go unused, and a training pays for it in every step, while
+its weights differ across machines anyway once it runs in bfloat16 (costs measured by
+``bench/train_fpointnet.py``, docs/reproducibility.md). Everything that decides a dataset, a
+cache, an evaluation or the demo's CI gate keeps the AVX2 kernels.
+
 Stdlib only: this module is imported before numpy.
 """
 
@@ -36,7 +43,12 @@ AVX2_SETTINGS = ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES", "ATEN_CPU_CAPA
                  "MKL_ENABLE_INSTRUCTIONS")
 """The environment variables :func:`avx2_kernels` sets."""
 NATIVE_SWITCH = "SIANMS_NATIVE_KERNELS"
-"""Set to 1 to let every library pick its kernels by the CPU (faster where AVX-512 pays; other bytes)."""
+"""1: every library picks its kernels by the CPU (faster where AVX-512 pays; other bytes); 0: AVX2
+kernels, for the trainings too; unset: :func:`native_by_default` decides by the command."""
+NATIVE_BY_DEFAULT = (("train",),)
+"""Commands (leading words of the command line) that run native kernels unless told otherwise."""
+BF16_FLAGS = frozenset({"avx512_bf16", "amx_bf16"})
+"""CPU flags of native bfloat16 matrix arithmetic (AVX512-BF16 dot products, AMX tiles)."""
 
 
 def cpu_facts(cpuinfo: str | None = None) -> tuple[str, str]:
@@ -93,18 +105,38 @@ def installed_numpy_version() -> tuple[int, int] | None:
     return None
 
 
+def native_by_default(arguments: list[str]) -> bool:
+    """Whether the command of ``arguments`` (the command line after the program name) runs the
+    CPU's native kernels when :data:`NATIVE_SWITCH` is unset: the trainings (module docstring)."""
+    words = [word for word in arguments if not word.startswith("-")]
+    return any(tuple(words[:len(command)]) == command for command in NATIVE_BY_DEFAULT)
+
+
+def has_native_bf16(cpuinfo: str | None = None) -> bool:
+    """Whether the CPU computes bfloat16 matrix products in hardware (:data:`BF16_FLAGS`)."""
+    text = _read_cpuinfo() if cpuinfo is None else cpuinfo
+    for line in text.splitlines():
+        key, _, value = line.partition(":")
+        if key.strip() == "flags":
+            return bool(BF16_FLAGS & set(value.split()))
+    return False
+
+
 def use_avx2_kernels(environ: MutableMapping[str, str] = os.environ, cpuinfo: str | None = None,
-                     machine: str | None = None) -> dict[str, str]:
+                     machine: str | None = None, native_default: bool = False) -> dict[str, str]:
     """Ask every arithmetic library for its AVX2 kernels, on an x86-64 CPU that has AVX2 and FMA.
 
-    A setting the user made is kept, and :data:`NATIVE_SWITCH` set to 1 asks for none; on
-    another CPU nothing is asked (AVX2 kernels would not run there). Returns what it set.
+    A setting the user made is kept; :data:`NATIVE_SWITCH` set to 1 asks for none, set to 0 asks
+    for them even where ``native_default`` (the command's default, :func:`native_by_default`)
+    would not; on another CPU nothing is asked (AVX2 kernels would not run there). Returns what
+    it set.
 
     Raises RuntimeError when it would set this process's environment after numpy or torch has
     loaded: they would keep the kernels they chose, while the record said AVX2.
     """
     machine = platform.machine() if machine is None else machine
-    if environ.get(NATIVE_SWITCH) == "1" or machine not in ("x86_64", "AMD64"):
+    native = environ.get(NATIVE_SWITCH, "1" if native_default else "0") == "1"
+    if native or machine not in ("x86_64", "AMD64"):
         return {}
     if cpu_facts(cpuinfo)[1] not in ("AVX2", "AVX512"):
         return {}

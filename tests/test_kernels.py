@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from sianms_cli.kernels import (AVX2_SETTINGS, NATIVE_SWITCH, avx2_kernels, cpu_facts, kernels_in_use,
-                                numpy_avx512_features, use_avx2_kernels)
+from sianms_cli.kernels import (AVX2_SETTINGS, NATIVE_SWITCH, avx2_kernels, cpu_facts, has_native_bf16,
+                                kernels_in_use, native_by_default, numpy_avx512_features, use_avx2_kernels)
 
 XEON = "vendor_id\t: GenuineIntel\nflags\t\t: fpu sse2 avx avx2 fma avx512f avx512dq avx512cd avx512bw avx512vl\n"
 EPYC_ZEN3 = "vendor_id\t: AuthenticAMD\nflags\t\t: fpu sse2 avx avx2 fma bmi2\n"
@@ -43,6 +43,30 @@ def test_a_users_own_setting_is_kept_and_the_kernels_are_then_custom():
     added = use_avx2_kernels(environ, XEON, "x86_64")
     assert "OPENBLAS_CORETYPE" not in added and environ["OPENBLAS_CORETYPE"] == "SkylakeX"
     assert kernels_in_use("AVX512", environ) == "custom"
+
+
+@pytest.mark.parametrize("arguments, native", [
+    (["train", "fpointnet", "--cache", "c"], True), (["train", "siamese"], True), (["demo", "--out", "train"], False),
+    (["eval", "--split", "train"], False), ([], False), (["--help"], False)])
+def test_only_the_trainings_run_native_kernels_by_default(arguments, native):
+    assert native_by_default(arguments) is native
+    environ = {}
+    added = use_avx2_kernels(environ, XEON, "x86_64", native_default=native_by_default(arguments))
+    assert (added == {}) is native
+
+
+def test_the_switch_overrides_the_commands_default():
+    environ = {NATIVE_SWITCH: "0"}
+    assert use_avx2_kernels(environ, XEON, "x86_64", native_default=True) == avx2_kernels()
+    environ = {NATIVE_SWITCH: "1"}
+    assert use_avx2_kernels(environ, XEON, "x86_64", native_default=False) == {}
+
+
+@pytest.mark.parametrize("flags, native", [("avx2 avx512f avx512_bf16", True), ("avx2 amx_bf16 amx_tile", True),
+                                           ("avx2 avx512f avx512bw", False)])
+def test_native_bf16_is_read_from_the_cpu_flags(flags, native):
+    assert has_native_bf16(f"vendor_id\t: GenuineIntel\nflags\t\t: fpu {flags}\n") is native
+    assert has_native_bf16("") is False
 
 
 def test_native_kernels_on_request():

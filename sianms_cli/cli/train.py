@@ -187,8 +187,11 @@ def fpointnet_cli(
     epochs: int = typer.Option(201, help="Epochs (original: 201)."),
     batch_size: int = typer.Option(32, help="Frustums per step (original: 32)."),
     lr: float = typer.Option(1e-3, help="Adam learning rate."),
-    decay_step: int = typer.Option(800_000, help="Samples seen per learning-rate and BN-momentum step."),
-    decay_rate: float = typer.Option(0.5, help="Learning-rate factor per step."),
+    schedule: str = typer.Option("cosine", help="cosine: warm-up, then learning rate and BN momentum decay over "
+                                                "the epochs asked for; original: halved every --decay-step samples."),
+    decay_step: int = typer.Option(800_000, help="With --schedule original: samples seen per learning-rate and "
+                                                 "BN-momentum step."),
+    decay_rate: float = typer.Option(0.5, help="With --schedule original: learning-rate factor per step."),
     box_weight: float = typer.Option(1.0, help="Weight of the box terms (λ)."),
     corner_weight: float = typer.Option(10.0, help="Weight of the corner loss inside λ."),
     multiview: bool = typer.Option(False, "--multiview", help="Also train on the union frustum of every cache pair "
@@ -217,7 +220,8 @@ def fpointnet_cli(
         cache=str(cache), val_cache=None if val_cache is None else str(val_cache),
         classes=tuple(name.strip() for name in classes.split(",") if name.strip()), num_points=num_points,
         num_object_points=num_object_points, min_box_height=min_box_height, intensity=intensity, flip=flip,
-        shift=shift, jitter=jitter, epochs=epochs, batch_size=batch_size, lr=lr, decay_step=decay_step,
+        shift=shift, jitter=jitter, epochs=epochs, batch_size=batch_size, lr=lr, schedule=schedule,
+        decay_step=decay_step,
         decay_rate=decay_rate, box_weight=box_weight, corner_weight=corner_weight, multiview=multiview,
         dataroot=None if dataroot is None else str(dataroot), max_distance=max_distance, seed=seed, device=device,
         precision=precision, streams=streams)
@@ -226,10 +230,13 @@ def fpointnet_cli(
         if quiet:
             return
         validation = (f"; val IoU>=0.5 {_figure(row['val_iou_0.5'])}, >=0.7 {_figure(row['val_iou_0.7'])}, "
-                      f"centre {_figure(row['val_center_error'])} m, heading {_figure(row['val_heading_error'])} rad, "
-                      f"seg {_figure(row['val_seg_accuracy'])}" if "val_iou_0.5" in row else "")
+                      f"centre {_figure(row['val_center_error'])} m, heading {_figure(row['val_heading_error'])} rad "
+                      f"({_figure(row['val_heading_error_mod_pi'])} modulo π, bin accuracy "
+                      f"{_figure(row['val_heading_bin_accuracy'])}), seg {_figure(row['val_seg_accuracy'])}"
+                      if "val_iou_0.5" in row else "")
         typer.echo(f"epoch {row['epoch']}/{epochs}: loss {row['train_total']:.4f} "
-                   f"(mask {row['train_mask']:.4f}, corner {row['train_corner']:.4f}){validation}", err=True)
+                   f"(mask {row['train_mask']:.4f}, heading class {row['train_heading_class']:.4f}, "
+                   f"corner {row['train_corner']:.4f}){validation}", err=True)
 
     with ProgressBar(quiet) as bar:
         result = run(config, out, overwrite=overwrite, resume=resume, progress=bar, on_epoch=report_epoch)
@@ -254,6 +261,7 @@ def fpointnet_cli(
             lines.append(f"  {name or 'all'} ({metrics[f'{prefix}_count']} frustums): IoU>=0.5 "
                          f"{_figure(metrics[f'{prefix}_iou_0.5'])}, >=0.7 {_figure(metrics[f'{prefix}_iou_0.7'])}, "
                          f"centre {_figure(metrics[f'{prefix}_center_error'])} m, "
-                         f"heading {_figure(metrics[f'{prefix}_heading_error'])} rad, "
+                         f"heading {_figure(metrics[f'{prefix}_heading_error'])} rad "
+                         f"({_figure(metrics[f'{prefix}_heading_error_mod_pi'])} modulo π), "
                          f"seg accuracy {_figure(metrics[f'{prefix}_seg_accuracy'])}")
     typer.echo("\n".join(lines))

@@ -5,29 +5,31 @@
 - ``fp32``: every operation in float32; resume is bit-exact on a CPU.
 - ``bf16``: the training forward passes under ``torch.autocast`` with bfloat16 (matrix
   products in bfloat16, accumulated in float32). bfloat16 has float32's exponent range, so
-  gradients need no loss scaling. On CPUs with AVX512-BF16 or AMX it is the fast mode: on 2
-  cores of an AMD EPYC, Frustum PointNets trained 1.8x (1,024 points) and 2.0x (256 points)
-  the frustums per second of float32 (``bench/train_fpointnet.py --precisions fp32,bf16``).
-  A CPU without them emulates bfloat16, slowly.
+  gradients need no loss scaling. Fast only where the CPU computes bfloat16 in hardware
+  (AVX512-BF16 or AMX) *and* the libraries run their native kernels
+  (:mod:`sianms_cli.kernels`); anywhere else bfloat16 is emulated, many times slower than
+  float32, and is refused (:func:`cpu_bf16_is_native`).
 - ``fp16``: autocast with float16 and dynamic loss scaling (``torch.amp.GradScaler``: float16
-  gradients underflow otherwise); CUDA only: on the same CPU it trained at 0.07-0.15x float32.
+  gradients underflow otherwise); CUDA only (on a CPU it is slower than float32).
 - ``auto``: on CUDA bfloat16 where the GPU has it (Ampere and later), else float16; on a CPU
-  float32, so CPU results do not change with the flag's default.
+  bfloat16 where it is native, else float32.
 
 Weights, optimizer state, batch-norm statistics and the losses stay float32 in every mode
 (outputs are cast back before the loss: autocast on a CPU leaves sums and norms in
 bfloat16). Validation runs in float32, as ``sianms eval`` does, so a run's validation
-figures measure its weights, not its arithmetic.
+figures measure its weights, not its arithmetic. Speeds: docs/performance.md.
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
 from typing import Any
 
 import torch
 
 from sianms_cli.errors import SianmsError
+from sianms_cli.kernels import has_native_bf16
 
 PRECISIONS = ("auto", "fp32", "bf16", "fp16")
 _DTYPES = {"bf16": torch.bfloat16, "fp16": torch.float16}
@@ -48,14 +50,27 @@ def resolve_precision(name: str, device: torch.device) -> str:
     check_precision(name)
     if name == "auto":
         if device.type != "cuda":
-            return "fp32"
+            return "bf16" if cpu_bf16_is_native() else "fp32"
         return "bf16" if torch.cuda.is_bf16_supported() else "fp16"
     if name == "fp16" and device.type != "cuda":
         raise SianmsError("--precision fp16 runs on CUDA only (float16 on a CPU is several times slower "
-                          "than float32); on a CPU use bf16")
+                          "than float32); on a CPU use bf16 or fp32")
+    if name == "bf16" and device.type == "cpu" and not cpu_bf16_is_native():
+        raise SianmsError("--precision bf16: this CPU would emulate bfloat16 (no AVX512-BF16 or AMX, or the "
+                          "libraries run AVX2 kernels), many times slower than fp32; use fp32, or "
+                          "SIANMS_NATIVE_KERNELS=1 on a CPU that has them")
     if name == "bf16" and device.type == "cuda" and not torch.cuda.is_bf16_supported():
         raise SianmsError(f"--precision bf16: {torch.cuda.get_device_name(device)} has no bfloat16; use fp16")
     return name
+
+
+def cpu_bf16_is_native() -> bool:
+    """Whether bfloat16 matrix products run in hardware here: the CPU has AVX512-BF16 or AMX, torch
+    runs its AVX-512 kernels and oneDNN is not held below them (:mod:`sianms_cli.kernels`)."""
+    onednn_limit = os.environ.get("ONEDNN_MAX_CPU_ISA", "ALL").upper()
+    return (has_native_bf16() and torch.backends.cpu.get_cpu_capability().startswith("AVX512")
+            and (onednn_limit == "ALL" or onednn_limit.startswith(("AVX512_CORE_BF16", "AVX512_CORE_AMX",
+                                                                   "AVX10"))))
 
 
 class MixedPrecision:

@@ -61,12 +61,26 @@ def test_size_clusters_are_the_training_means_in_lwh_order(trained):
     assert car[0] > car[1]  # length before width: the (w, l, h) order was converted
 
 
+class Stopped(Exception):
+    """Stands for a kill between two epochs."""
+
+
+def stop_in_epoch_two(row):
+    if row["epoch"] == 2:  # before epoch 2's checkpoint is written
+        raise Stopped
+
+
+def stop_in_epoch_three(row):
+    if row["epoch"] == 3:
+        raise Stopped
+
+
 @pytest.mark.parametrize("streams", [1, 2])
 def test_resume_ends_where_an_uninterrupted_run_ends(streams, two_shard_cache, tmp_path):
-    short = FPointNetConfig(cache=str(two_shard_cache), epochs=1, streams=streams, **TINY)
     full = FPointNetConfig(cache=str(two_shard_cache), epochs=2, streams=streams, **TINY)
     run(full, tmp_path / "straight")
-    run(short, tmp_path / "stopped")
+    with pytest.raises(Stopped):
+        run(full, tmp_path / "stopped", on_epoch=stop_in_epoch_two)
     resumed = run(full, tmp_path / "stopped", resume=True)
     assert len(resumed.history) == 2 and resumed.resumed_from == 1
     a = load_checkpoint(tmp_path / "straight" / "checkpoint.pt").model
@@ -74,12 +88,41 @@ def test_resume_ends_where_an_uninterrupted_run_ends(streams, two_shard_cache, t
     assert all(torch.equal(a[key], b[key]) for key in a)
 
 
-def test_schedule_is_the_originals_staircase():
-    config = FPointNetConfig(cache="unused")
-    assert schedule(config, 0) == (1e-3, 0.5)
-    assert schedule(config, 799_999) == (1e-3, 0.5)
-    assert schedule(config, 800_000) == (5e-4, 0.25)
-    assert schedule(config, 10 * 800_000)[1] == 0.01  # BN decay capped at 0.99
+def test_schedule_original_is_the_originals_staircase_whatever_the_runs_length():
+    config = FPointNetConfig(cache="unused", schedule="original")
+    for total in (1_000, 10**8):
+        assert schedule(config, 0, total) == (1e-3, 0.5)
+        assert schedule(config, 799_999, total) == (1e-3, 0.5)
+        assert schedule(config, 800_000, total) == (5e-4, 0.25)
+        assert schedule(config, 10 * 800_000, total)[1] == 0.01  # BN decay capped at 0.99
+
+
+def test_schedule_cosine_warms_up_then_decays_both_over_the_run():
+    config = FPointNetConfig(cache="unused", epochs=100, lr=1e-3, bn_momentum=0.5, bn_momentum_min=0.01)
+    total = 100_000  # 1,000 samples an epoch: the warm-up is min(3 % of the run, one epoch) = 1,000 samples
+    warmup = 1_000
+    assert schedule(config, 0, total) == pytest.approx((1e-3 / (warmup + 1), 0.5))
+    assert schedule(config, warmup // 2, total)[0] == pytest.approx(1e-3 * (warmup // 2 + 1) / (warmup + 1))
+    lr, momentum = schedule(config, warmup, total)
+    assert lr == pytest.approx(1e-3) and momentum == pytest.approx(0.01 + 0.49 * 0.5 * (1 + math.cos(math.pi * 0.01)))
+    middle = warmup + (total - warmup) // 2
+    assert schedule(config, middle, total)[0] == pytest.approx(1e-3 * (0.01 + 0.99 * 0.5), rel=1e-4)
+    assert schedule(config, total // 2, total)[1] == pytest.approx(0.01 + 0.49 * 0.5)
+    assert schedule(config, total, total) == pytest.approx((1e-5, 0.01))
+    assert schedule(config, 2 * total, total) == pytest.approx((1e-5, 0.01))  # past the end: the floor
+    short = replace(config, epochs=10)  # three percent of the run is shorter than an epoch here
+    assert schedule(short, 300, 10_000)[0] == pytest.approx(1e-3)
+
+
+def test_a_short_training_learns_heading_beyond_a_uniform_guess(trained):
+    """The heading-bin loss of the last epoch is below ln 12, a uniform guess over the 12 bins's,
+    and the validation figures of both heading errors are logged (modulo π no larger than the AOE's)."""
+    _, result = trained
+    assert result.history[-1]["train_heading_class"] < math.log(12)
+    assert result.history[0]["train_heading_class"] > result.history[-1]["train_heading_class"]
+    last = result.history[-1]
+    assert 0 <= last["val_heading_error_mod_pi"] <= min(last["val_heading_error"], math.pi / 2)
+    assert 0 <= last["val_heading_bin_accuracy"] <= 1
 
 
 def test_box_score_hand_computed():
@@ -96,6 +139,8 @@ def test_bad_options_are_user_errors():
         FPointNetConfig(cache="c", batch_size=1)
     with pytest.raises(SianmsError, match="distinct"):
         FPointNetConfig(cache="c", classes=("car", "car"))
+    with pytest.raises(SianmsError, match="--schedule must be one of cosine, original, got 'step'"):
+        FPointNetConfig(cache="c", schedule="step")
 
 
 # --multiview: the union frustums of the cache's camera pairs join the training set.
@@ -124,7 +169,8 @@ def test_a_tiny_multiview_training_lowers_the_loss_and_counts_its_union_frustums
 def test_multiview_resume_ends_where_an_uninterrupted_run_ends(multiview, tmp_path):
     """The union frustums are recomputed here (the folder is removed) and give the same bytes."""
     config, result = multiview
-    run(replace(config, epochs=2), tmp_path / "stopped")
+    with pytest.raises(Stopped):
+        run(config, tmp_path / "stopped", on_epoch=stop_in_epoch_three)
     shutil.rmtree(tmp_path / "stopped" / "multiview")
     resumed = run(config, tmp_path / "stopped", resume=True)
     timings = ("seconds", "train_seconds")

@@ -12,6 +12,7 @@ from typer.testing import CliRunner
 from sianms_cli.cli import app
 from sianms_cli.errors import SianmsError
 from sianms_cli.training import fpointnet as fpointnet_training
+from sianms_cli.training import precision as precision_module
 from sianms_cli.training.fpointnet import LOSS_TERMS, FPointNetConfig
 from sianms_cli.training.fpointnet import run as train_fpointnet
 from sianms_cli.training.precision import MixedPrecision, float32_outputs, resolve_precision
@@ -30,10 +31,37 @@ TINY_SIAMESE = dict(dim=8, conv_channels=(8, 8), hidden=(16,), lr=1e-3, batch_si
 # --------------------------------------------------------------------------- resolving --precision
 
 
-def test_auto_is_float32_on_a_cpu_and_bf16_is_taken_as_asked():
-    assert resolve_precision("auto", CPU) == "fp32"
+@pytest.fixture
+def native_bf16(monkeypatch):
+    """bfloat16 taken as native: the suite runs AVX2 kernels, under which it is emulated (slowly, same results)."""
+    monkeypatch.setattr(precision_module, "cpu_bf16_is_native", lambda: True)
+
+
+def test_auto_on_a_cpu_is_bf16_where_native_and_bf16_is_taken_as_asked(native_bf16):
+    assert resolve_precision("auto", CPU) == "bf16"
     assert resolve_precision("fp32", CPU) == "fp32"
     assert resolve_precision("bf16", CPU) == "bf16"
+
+
+def test_auto_on_a_cpu_is_float32_where_bf16_would_be_emulated_and_bf16_is_refused(monkeypatch):
+    monkeypatch.setattr(precision_module, "cpu_bf16_is_native", lambda: False)
+    assert resolve_precision("auto", CPU) == "fp32"
+    with pytest.raises(SianmsError, match="--precision bf16: this CPU would emulate bfloat16"):
+        resolve_precision("bf16", CPU)
+
+
+@pytest.mark.parametrize("environment, capability, expected", [
+    ({}, "AVX512", True), ({"ONEDNN_MAX_CPU_ISA": "AVX2"}, "AVX512", False), ({}, "AVX2", False),
+    ({"ONEDNN_MAX_CPU_ISA": "AVX512_CORE_AMX"}, "AVX512", True)])
+def test_bf16_is_native_only_under_the_cpus_own_kernels(monkeypatch, environment, capability, expected):
+    monkeypatch.delenv("ONEDNN_MAX_CPU_ISA", raising=False)
+    for name, value in environment.items():
+        monkeypatch.setenv(name, value)
+    monkeypatch.setattr(precision_module, "has_native_bf16", lambda: True)
+    monkeypatch.setattr(torch.backends.cpu, "get_cpu_capability", lambda: capability)
+    assert precision_module.cpu_bf16_is_native() is expected
+    monkeypatch.setattr(precision_module, "has_native_bf16", lambda: False)
+    assert precision_module.cpu_bf16_is_native() is False
 
 
 def test_fp16_on_a_cpu_and_unknown_modes_are_refused():
@@ -122,7 +150,8 @@ def test_the_fp16_scaler_skips_an_overflowed_step_and_its_state_comes_back():
 # --------------------------------------------------------------------------- the trainings
 
 
-def test_a_bf16_siamese_training_learns_records_its_precision_and_resumes_exactly(tiny_caches, tmp_path):
+def test_a_bf16_siamese_training_learns_records_its_precision_and_resumes_exactly(tiny_caches, tmp_path,
+                                                                                   native_bf16):
     train, _ = tiny_caches
     config = SiameseConfig(cache=str(train), epochs=4, precision="bf16", **TINY_SIAMESE)
     straight = train_siamese(config, tmp_path / "straight")
@@ -139,7 +168,7 @@ def test_a_bf16_siamese_training_learns_records_its_precision_and_resumes_exactl
     assert float32.history[0]["train_loss"] != straight.history[0]["train_loss"]  # bf16 did compute otherwise
 
 
-def test_a_bf16_fpointnet_training_lowers_its_losses(tiny_caches, tmp_path):
+def test_a_bf16_fpointnet_training_lowers_its_losses(tiny_caches, tmp_path, native_bf16):
     config = FPointNetConfig(cache=str(tiny_caches[0]), val_cache=str(tiny_caches[1]), epochs=8, lr=3e-4,
                              precision="bf16", **TINY_FPOINTNET)
     result = train_fpointnet(config, tmp_path / "run")
@@ -158,7 +187,13 @@ def test_an_fp16_fpointnet_run_keeps_its_loss_scale_across_a_resume(tiny_caches,
     tiny = {**TINY_FPOINTNET, "cache": str(tiny_caches[0]), "precision": "fp16"}
     full = FPointNetConfig(epochs=2, **tiny)
     train_fpointnet(full, tmp_path / "straight")
-    train_fpointnet(FPointNetConfig(epochs=1, **tiny), tmp_path / "stopped")
+
+    def stop_in_epoch_two(row):
+        if row["epoch"] == 2:  # before epoch 2's checkpoint: a kill between the epochs
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train_fpointnet(full, tmp_path / "stopped", on_epoch=stop_in_epoch_two)
     first = load_checkpoint(tmp_path / "stopped" / "checkpoint.pt")
     assert first.extra["precision"] == "fp16" and first.extra["grad_scaler"]["scale"] != 65536.0
     train_fpointnet(full, tmp_path / "stopped", resume=True)
@@ -168,7 +203,7 @@ def test_an_fp16_fpointnet_run_keeps_its_loss_scale_across_a_resume(tiny_caches,
     assert all(torch.equal(value, b.model[key]) for key, value in a.model.items())
 
 
-def test_the_cli_says_the_precision_and_refuses_fp16_on_a_cpu_in_one_line(tiny_caches, tmp_path):
+def test_the_cli_says_the_precision_and_refuses_fp16_on_a_cpu_in_one_line(tiny_caches, tmp_path, native_bf16):
     train, _ = tiny_caches
     small = ["--num-points", "32", "--num-object-points", "16", "--batch-size", "8", "--min-box-height", "0",
              "--device", "cpu", "--epochs", "1", "--quiet"]
@@ -181,5 +216,5 @@ def test_the_cli_says_the_precision_and_refuses_fp16_on_a_cpu_in_one_line(tiny_c
     assert refused.exit_code == 2
     assert refused.stderr.strip().splitlines() == [
         "error: --precision fp16 runs on CUDA only (float16 on a CPU is several times slower than float32); "
-        "on a CPU use bf16"]
+        "on a CPU use bf16 or fp32"]
     assert not (tmp_path / "fp16").exists()
