@@ -14,8 +14,9 @@ from sianms_cli.cli._app import ProgressBar, command, use_torch_threads
 @command("demo")
 def demo_cli(
     out: Path = typer.Option(Path("sianms-demo"), help="Demo folder (a rerun resumes the stages not yet done)."),
-    quick: bool = typer.Option(False, "--quick", help="About 3 minutes instead of 15: 2 scenes, 4 siamese and 4 "
-                                                      "F-PointNets epochs of batch 8, 128 points per frustum."),
+    quick: bool = typer.Option(False, "--quick", help="The quick profile, for CI: 2 scenes, 4 siamese and 4 F-PointNets "
+                                                      "epochs of batch 8, 128 points per frustum (times: "
+                                                      "docs/performance.md)."),
     seed: int = typer.Option(0, help="Seed of the world, the 2-D detector, both trainings and eval."),
     version: str = typer.Option("v1.0-mini", help="v1.0-mini (10 scenes, 2 of them validation) or v1.0-trainval "
                                                   "(up to 850, 150/850 of them validation: a larger study)."),
