@@ -1,5 +1,6 @@
 """`sianms report`: an evaluation's Table I as Markdown, HTML and JSON; with --baseline, a regression gate;
-of several evaluations (seeds), Table I over them with its spread and the paired differences."""
+of several evaluations (seeds), Table I over them with its spread and the paired differences, as a report
+folder (--out) or a study's results page (--page)."""
 
 from __future__ import annotations
 
@@ -27,6 +28,9 @@ def report_cli(
                                                       "precision/recall/F1 drop as a fraction."),
     force: bool = typer.Option(False, "--force", help="Compare even when the runs' comparable configs differ."),
     out: Optional[Path] = typer.Option(None, help="Report folder to write [default: EVAL/report]."),
+    page: Optional[Path] = typer.Option(None, help="Several EVALs: write this results page (Markdown, e.g. "
+                                                   "docs/results/NAME.md) and NAME.json beside it; its section "
+                                                   "Analysis is kept when the page is made again."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing report folder."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
     as_json: bool = typer.Option(False, "--json", help="Print report.json; nothing else goes to stdout."),
@@ -38,10 +42,15 @@ def report_cli(
     regresses beyond its allowance (listed), 0 otherwise, 2 on bad input or differing configs.
 
     Given several evaluations (seeds of one study), Table I over them as mean ± standard deviation and
-    the merging methods' paired differences from vanilla and Axis-NMS with a 95 % interval, into --out.
+    the merging methods' paired differences from vanilla and Axis-NMS with a 95 % interval, into --out; with
+    --page, the study's results page (those tables, duplicates left and camera pairs, headed by the command,
+    commit, machine and date) and its JSON.
     """
     import json
 
+    if page is not None:
+        _results_page(evals, page, baseline, max_drop, force, out, overwrite, quiet, as_json)
+        return
     if len(evals) > 1:
         report = _runs_report(evals, baseline, max_drop, force, out, overwrite, quiet)
     else:
@@ -65,15 +74,47 @@ def report_cli(
         raise typer.Exit(1)
 
 
-def _runs_report(evals: List[Path], baseline: Optional[Path], max_drop: Optional[str], force: bool,
-                 out: Optional[Path], overwrite: bool, quiet: bool):
+def _refuse_gate_flags(baseline: Optional[Path], max_drop: Optional[str], force: bool) -> None:
     from sianms_cli.errors import SianmsError
-    from sianms_cli.reporting.runs_report import RunsReportConfig, run
 
     for flag, given in (("--baseline", baseline is not None), ("--max-drop", max_drop is not None),
                         ("--force", force)):
         if given:
             raise SianmsError(f"{flag}: the gate compares one evaluation with its baseline; give one EVAL")
+
+
+def _results_page(evals: List[Path], page: Path, baseline: Optional[Path], max_drop: Optional[str], force: bool,
+                  out: Optional[Path], overwrite: bool, quiet: bool, as_json: bool) -> None:
+    import json
+
+    from sianms_cli.errors import SianmsError
+    from sianms_cli.reporting.results_page import PageConfig, check_page_outputs, command_line, run
+
+    _refuse_gate_flags(baseline, max_drop, force)
+    if len(evals) < 2:
+        raise SianmsError("--page: a results page summarises several runs; give at least two EVAL")
+    sources = [str(folder) for folder in evals]
+    config = PageConfig(evals=tuple(sources), page=str(page),
+                        command=command_line(sources, str(page), None if out is None else str(out)))
+    if out is not None:
+        check_page_outputs(page)  # before the report folder is written
+        report = _runs_report(evals, None, None, False, out, overwrite, quiet)
+    with ProgressBar(quiet) as bar:
+        written = run(config, progress=bar)
+    if as_json:
+        typer.echo(json.dumps(written.content, indent=2, allow_nan=False))
+        return
+    typer.echo(f"wrote {written.page} and {written.json}")
+    if out is not None:
+        typer.echo(f"wrote {report.html}")
+
+
+def _runs_report(evals: List[Path], baseline: Optional[Path], max_drop: Optional[str], force: bool,
+                 out: Optional[Path], overwrite: bool, quiet: bool):
+    from sianms_cli.errors import SianmsError
+    from sianms_cli.reporting.runs_report import RunsReportConfig, run
+
+    _refuse_gate_flags(baseline, max_drop, force)
     if out is None:
         raise SianmsError("--out: a report over several runs has no EVAL folder of its own; name its folder")
     config = RunsReportConfig(evals=tuple(str(folder) for folder in evals))

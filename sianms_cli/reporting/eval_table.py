@@ -111,8 +111,10 @@ def table_markdown(table: Mapping[str, Any]) -> str:
         for label, row in table["paper_table_i"].items():
             lines.append(f"| {label} (paper) | " + " | ".join(format_cell(v, c) for m in paper_methods
                                                               for v, c in zip(row[m], COLUMNS)) + " |")
-    lines += ["", "Every method (NMS at IoU 0.3 unless named `@threshold`; *best* = best car AP of its family "
-                  "over the split):", "",
+    calibration = (table.get("thresholds") or {}).get("calibration")  # set by `sianms eval --thresholds-from`
+    chosen = f"on the calibration split {calibration['split']}" if calibration else "over the split"
+    lines += ["", f"Every method (NMS at IoU 0.3 unless named `@threshold`; *best* = best car AP of its family "
+                  f"{chosen}):", "",
               "| method | " + " | ".join(f"{label} {c}" for _, label in REGIONS_SHOWN for c in COLUMNS) + " |",
               "|---|" + "---|" * (len(REGIONS_SHOWN) * len(COLUMNS))]
     for m in methods:

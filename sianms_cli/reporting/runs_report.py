@@ -34,8 +34,9 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from sianms_cli.errors import SianmsError
-from sianms_cli.io import build_folder
+from sianms_cli.errors import DataFormatError, SianmsError
+from sianms_cli.io import build_folder, read_json
+from sianms_cli.json_stream import is_finite_number
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.reporting.eval_table import (
     COLUMNS,
@@ -109,6 +110,39 @@ def read_runs(sources: Sequence[str]) -> list[dict[str, Any]]:
                               "checkpoints); each run may count once")
         seen[identity] = source
     return runs
+
+
+def run_thresholds(source: str) -> dict[str, Any] | None:
+    """The thresholds an evaluation folder used and where each came from (its table.json's ``thresholds``,
+    :func:`~sianms_cli.pipelines.calibration.thresholds_used`); None for a report.json or an evaluation from
+    before they were recorded."""
+    path = Path(source) / "table.json"
+    if not Path(source).is_dir():
+        return None
+    value = read_json(path).get("thresholds")
+    if value is None:
+        return None
+    dis_thr = value.get("dis_thr") if isinstance(value, dict) else None
+    if not (isinstance(dis_thr, dict) and _number_or_none(dis_thr.get("value"))
+            and isinstance(dis_thr.get("source"), str)):
+        raise DataFormatError(path, "must hold a value (a number or null) and its source", field="thresholds.dis_thr")
+    nms = value.get("nms")
+    if not isinstance(nms, dict) or not all(isinstance(choice, dict) and isinstance(choice.get("method"), str)
+                                            and isinstance(choice.get("source"), str) for choice in nms.values()):
+        raise DataFormatError(path, "must map each NMS family to its method and source", field="thresholds.nms")
+    calibration = value.get("calibration")
+    if calibration is not None and not (isinstance(calibration, dict) and all(
+            isinstance(calibration.get(key), str) for key in ("path", "split", "sha256"))):
+        raise DataFormatError(path, "must be null or hold the calibration's path, split and sha256",
+                              field="thresholds.calibration")
+    return {"dis_thr": {"value": dis_thr["value"], "source": dis_thr["source"]},
+            "nms": {family: {"method": choice["method"], "source": choice["source"]} for family, choice in nms.items()},
+            "calibration": None if calibration is None else {key: calibration[key] for key in ("path", "split",
+                                                                                                 "sha256")}}
+
+
+def _number_or_none(value: Any) -> bool:
+    return value is None or is_finite_number(value)
 
 
 # --------------------------------------------------------------------------- statistics
@@ -217,13 +251,35 @@ def _interval(stats: Mapping[str, Any], column: str) -> str:
 
 
 def document(content: Mapping[str, Any]) -> list[Block]:
+    """The runs report's blocks: the runs, then :func:`result_blocks`."""
+    runs = content["runs"]
+    return [Heading(f"{len(runs)} runs"),
+            Table("runs", ["run", "source", "seed", "dataset", "GT cars, all", "GT cars, overlap"],
+                  [[str(i), run["source"], str(run["seed"]), run["dataset_sha256"][:12], str(run["gt"]["all"]),
+                    str(run["gt"]["overlap"])] for i, run in enumerate(runs)], labels=2),
+            *result_blocks(content)]
+
+
+def best_note(runs: Sequence[Mapping[str, Any]]) -> str:
+    """What `(best)` means for these runs: chosen on a calibration split (``--thresholds-from``) or on their own."""
+    calibrated = [run.get("thresholds") is not None and run["thresholds"].get("calibration") is not None
+                  for run in runs]
+    if all(calibrated):
+        return ("`(best)`: the family at the threshold with the best car AP on each run's calibration split "
+                "(`sianms eval --thresholds-from`), never chosen on the split reported here.")
+    if any(calibrated):
+        return ("`(best)`: the family at the threshold with the best car AP on a calibration split for the runs that "
+                "took their thresholds from one, on the reported split itself for the others.")
+    return ("`(best)`: the family at the threshold with the best car AP of each run, chosen on the split reported "
+            "here, which may differ between runs.")
+
+
+def result_blocks(content: Mapping[str, Any], json_name: str = "report.json") -> list[Block]:
+    """Table I over the runs, the paired differences and re-identification; ``json_name``: the file holding
+    every run's figures."""
     runs, name = content["runs"], content["table_class"]
     n = len(runs)
-    blocks: list[Block] = [
-        Heading(f"{n} runs"),
-        Table("runs", ["run", "source", "seed", "dataset", "GT cars, all", "GT cars, overlap"],
-              [[str(i), run["source"], str(run["seed"]), run["dataset_sha256"][:12], str(run["gt"]["all"]),
-                str(run["gt"]["overlap"])] for i, run in enumerate(runs)], labels=2)]
+    blocks: list[Block] = []
     header = ["region", "method", *COLUMNS, *(f"paper {c}" for c in COLUMNS), "GT boxes per run"]
     rows = []
     for region, label in REGIONS_SHOWN:
@@ -234,9 +290,8 @@ def document(content: Mapping[str, Any]) -> list[Block]:
                          ", ".join(str(gt) for gt in cells["gt"])])
     blocks += [Heading(f"Table I over the runs ({name})"),
                Paragraph(f"Mean ± sample standard deviation over the {n} runs (AP and ASE in %, ATE in m, AOE in "
-                         "rad). `(best)`: the family at the threshold with the best car AP of each run, which may "
-                         "differ between runs. The paper's figures (F-PointNets on the real nuScenes validation set) "
-                         "are beside for orientation only."),
+                         f"rad). {best_note(runs)} The paper's figures (F-PointNets on the real nuScenes validation "
+                         "set) are beside for orientation only."),
                Table("table-i", header, rows, labels=2)]
     header = ["comparison", "region", *(f"{c} difference" for c in COLUMNS), "AP 95 % interval", "AP better in"]
     rows = []
@@ -251,7 +306,7 @@ def document(content: Mapping[str, Any]) -> list[Block]:
                              "the runs: the methods of one run share its data, detector and matcher, so this is what "
                              "ranks them. The interval is the 95 % Student-t interval of the mean difference; "
                              "*better in* counts the runs where the method's AP was higher. Each run's differences, "
-                             "and the intervals of the error columns, are in report.json."),
+                             f"and the intervals of the error columns, are in {json_name}."),
                    Table("paired-differences", header, rows, labels=2)]
     reid = content["reidentification"]
     if reid:
@@ -279,7 +334,8 @@ def summarize(sources: Sequence[str], runs: Sequence[Mapping[str, Any]]) -> dict
         "config": {name: first["config"][name] for name in SHARED_FIELDS},
         "runs": [{"source": source, "eval": run["eval"], **{name: run["config"][name] for name in RUN_IDENTITY},
                   "split_scenes": run["config"]["split_scenes"], "fingerprints": run["fingerprints"],
-                  "gt": {region: figure(run, region, run["methods"][0], "gt") for region, _ in REGIONS_SHOWN}}
+                  "gt": {region: figure(run, region, run["methods"][0], "gt") for region, _ in REGIONS_SHOWN},
+                  "thresholds": run_thresholds(source)}
                  for source, run in zip(sources, runs)],
         "cells": table_cells(runs),
         "paired_differences": paired_differences(runs),

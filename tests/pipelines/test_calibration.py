@@ -103,6 +103,7 @@ def test_thresholds_come_from_the_calibration_even_where_the_evaluated_split_wou
                                    "split_scenes": thresholds(world.calib)["chosen_on"]["split_scenes"],
                                    "sha256": calibration.sha256}
     assert json.loads((out / "table.json").read_text())["thresholds"] == used
+    assert "*best* = best car AP of its family on the calibration split mini_val" in (out / "table.md").read_text()
     rows = [row for path in sorted((out / "scenes").glob("*.parquet")) for row in pq.read_table(path).to_pylist()]
     distances = [row["distance"] for row in rows if row["kind"] == "sianms"]
     assert distances and max(distances) <= chosen  # the scenes matched at the calibration's dis_thr
