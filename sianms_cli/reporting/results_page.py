@@ -199,23 +199,30 @@ def threshold_blocks(runs: Sequence[Mapping[str, Any]]) -> list[Block]:
     for i, run in enumerate(runs):
         used = run.get("thresholds")
         if used is None:
-            rows.append([str(i), "-", "not recorded", "-", "-", "-"])
+            rows.append([str(i), "-", "not recorded", "-", "-", "-", "-", "-"])
             continue
-        value = used["dis_thr"]["value"]
-        calibration = used["calibration"]
+        calibration, own = used["calibration"], used.get("own_split")
         nms = ", ".join(choice["method"] for choice in used["nms"].values()) or "-"
         sources = sorted({choice["source"] for choice in used["nms"].values()}) or ["-"]
-        rows.append([str(i), "-" if value is None else f"{value:.4g}", used["dis_thr"]["source"], nms,
+        rows.append([str(i), _threshold(used["dis_thr"]["value"]), used["dis_thr"]["source"], nms,
                      ", ".join(sources), "-" if calibration is None
-                     else f"{calibration['split']} `{calibration['sha256'][:12]}` ({calibration['path']})"])
+                     else f"{calibration['split']} `{calibration['sha256'][:12]}` ({calibration['path']})",
+                     "-" if own is None else _threshold(own["dis_thr"]),
+                     "-" if own is None else ", ".join(own["nms"].values()) or "-"])
     return [Heading("Thresholds"),
             Paragraph("Where each run's siaNMS distance threshold (dis_thr: siaNMS, hybrid, gated siaNMS) and each "
                       "NMS family's reported threshold came from: *calibration* is `sianms eval --thresholds-from`, "
                       "a split of other scenes (named with the first 12 characters of its thresholds.json's SHA-256 "
-                      "and its folder); *this split* means chosen on the split the run reports. The hybrid's NMS is "
-                      "the paper's IoU 0.3 throughout."),
+                      "and its folder); *this split* means chosen on the split the run reports. The last two columns "
+                      "are what the reported split's own labels choose (its thresholds.json), shown for comparison "
+                      "and used by no table. The hybrid's NMS is the paper's IoU 0.3 throughout."),
             Table("thresholds", ["run", "dis_thr", "dis_thr from", "NMS reported as best", "NMS from",
-                                 "calibration split"], rows, labels=1)]
+                                 "calibration split", "dis_thr this split chooses", "NMS this split chooses"],
+                  rows, labels=1)]
+
+
+def _threshold(value: float | None) -> str:
+    return "-" if value is None else f"{value:.4g}"
 
 
 def extra_blocks(content: Mapping[str, Any]) -> list[Block]:

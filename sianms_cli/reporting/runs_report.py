@@ -138,7 +138,24 @@ def run_thresholds(source: str) -> dict[str, Any] | None:
     return {"dis_thr": {"value": dis_thr["value"], "source": dis_thr["source"]},
             "nms": {family: {"method": choice["method"], "source": choice["source"]} for family, choice in nms.items()},
             "calibration": None if calibration is None else {key: calibration[key] for key in ("path", "split",
-                                                                                                 "sha256")}}
+                                                                                                 "sha256")},
+            "own_split": own_split_choices(Path(source) / "thresholds.json")}
+
+
+def own_split_choices(path: Path) -> dict[str, Any] | None:
+    """What the evaluated split's own labels choose (its thresholds.json, used by no table of its own):
+    {dis_thr, nms: {family: method}}; None where the evaluation has no such file."""
+    if not path.is_file():
+        return None
+    record = read_json(path)
+    dis_thr = record.get("dis_thr") if isinstance(record, dict) else None
+    if not (isinstance(dis_thr, dict) and _number_or_none(dis_thr.get("value"))):
+        raise DataFormatError(path, "must hold a value, a number or null", field="dis_thr")
+    nms = record.get("nms")
+    if not (isinstance(nms, dict) and all(isinstance(choice, dict) and isinstance(choice.get("method"), str)
+                                          for choice in nms.values())):
+        raise DataFormatError(path, "must map each NMS family to its method", field="nms")
+    return {"dis_thr": dis_thr["value"], "nms": {family: choice["method"] for family, choice in nms.items()}}
 
 
 def _number_or_none(value: Any) -> bool:

@@ -42,6 +42,8 @@ def make_run(tmp_path, k):
                 counts["car"] += DUPLICATES_SHIFT[k]
         table["best_nms"] = {"axis-nms": "axis-nms@0.1"}
         if k == 1:
+            (folder / "thresholds.json").write_text(json.dumps({"dis_thr": {"value": 0.6543},
+                                                                "nms": {"axis-nms": {"method": "axis-nms"}}}))
             table["thresholds"] = {"dis_thr": {"value": 0.8123, "source": "calibration"},
                                    "nms": {"axis-nms": {"method": "axis-nms@0.1", "iou": 0.1, "source": "calibration"}},
                                    "hybrid_nms_iou": 0.3, "calibration": CALIBRATION}
@@ -104,10 +106,10 @@ def test_the_tables_hold_the_runs_figures(runs, tmp_path):
 def test_each_runs_thresholds_are_named_with_their_source(runs, tmp_path):
     page = make_page(runs, tmp_path / "study.md")
     rows = rows_of(page.markdown, "0") + rows_of(page.markdown, "1")
-    thresholds = [row for row in rows if len(row) == 6]
-    assert thresholds[0] == ["0", "-", "not recorded", "-", "-", "-"]
+    thresholds = [row for row in rows if len(row) == 8]
+    assert thresholds[0] == ["0", "-", "not recorded", "-", "-", "-", "-", "-"]
     assert thresholds[1] == ["1", "0.8123", "calibration", "axis-nms@0.1", "calibration",
-                             f"calib `{'ab' * 6}` (/studies/s1/eval-calib)"]
+                             f"calib `{'ab' * 6}` (/studies/s1/eval-calib)", "0.6543", "axis-nms"]
     assert page.content["runs_report"]["runs"][1]["thresholds"]["calibration"] == {
         key: CALIBRATION[key] for key in ("path", "split", "sha256")}
     assert "on a calibration split for the runs that took their thresholds from one" in page.markdown
@@ -177,6 +179,12 @@ def test_a_pair_figure_no_evaluation_writes_is_named(runs, tmp_path):
 def test_an_edited_thresholds_record_is_named_by_field(runs, tmp_path, thresholds, field):
     edit_table(runs[1], lambda t: t.update(thresholds=thresholds))
     with pytest.raises(DataFormatError, match=rf"run1/table.json: field '{field}'"):
+        make_page(runs, tmp_path / "study.md")
+
+
+def test_an_edited_thresholds_file_of_a_run_is_named_by_field(runs, tmp_path):
+    (runs[1] / "thresholds.json").write_text(json.dumps({"dis_thr": {"value": "low"}, "nms": {}}))
+    with pytest.raises(DataFormatError, match="run1/thresholds.json: field 'dis_thr'"):
         make_page(runs, tmp_path / "study.md")
 
 
