@@ -10,9 +10,12 @@ folder, one process, and prints from ``eval.json`` and the scenes' timings:
   networks excluded, its metrics, and the pictures;
 - end-to-end samples per second of the scenes stage and of the whole evaluation;
 - the share of the scenes stage spent in the networks, the reference the rest is measured
-  against in the same run.
+  against in the same run;
+- with ``--checks``, the cost of the cache's checks (the folder against its manifest: every shard
+  file's size, rows, SHA-256 and unique ids, once when the command starts; each scene's point
+  lists): whole evaluations with the checks and with them switched off, in turn, twice each.
 
-Usage: python bench/eval.py [--scenes 3] [--threads 1] [--device cuda]
+Usage: python bench/eval.py [--scenes 3] [--threads 1] [--device cuda] [--checks]
        python bench/eval.py --dataroot D --split S --cache C --siamese R1 --fpointnet R2
 
 ``--device cuda`` runs the evaluation's networks on the GPU (the inputs are made the same way).
@@ -29,6 +32,8 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import torch
 
+from sianms_cli.data import cache as cache_module
+from sianms_cli.pipelines import scene as scene_module
 from sianms_cli.pipelines.job import EvalConfig, run
 from sianms_cli.pipelines.scene import STAGES
 
@@ -52,6 +57,39 @@ def make_inputs(folder: Path, scenes: int) -> dict[str, str]:
             "fpointnet": str(folder / "fpointnet")}
 
 
+def timed_evaluation(config: EvalConfig, out: Path, checks: bool) -> float:
+    """Seconds of one whole evaluation into ``out``, the cache's checks on or switched off; what an
+    earlier evaluation in this process checked is forgotten first (a command checks once, at its start)."""
+    cache_module._CHECKED_CACHES.clear()
+    cache_module._CHECKED_FILES.clear()
+    switched = {(cache_module, "check_shard_file"): lambda path, entry: None,
+                (cache_module, "_refuse_unlisted"): lambda root, listed: None,
+                (scene_module, "require_point_lists"): lambda path, table: None}
+    saved = {key: getattr(*key) for key in switched}
+    if not checks:
+        for (module, name), replacement in switched.items():
+            setattr(module, name, replacement)
+    try:
+        started = time.perf_counter()
+        run(config, out)
+        return time.perf_counter() - started
+    finally:
+        for (module, name), function in saved.items():
+            setattr(module, name, function)
+
+
+def measure_checks(config: EvalConfig, folder: Path) -> str:
+    """Whole evaluations with and without the checks, alternated, twice each (after the main one, so
+    none pays for the first compilation of the kernels)."""
+    seconds: dict[bool, list[float]] = {True: [], False: []}
+    for attempt in range(2):
+        for checks in (True, False):
+            seconds[checks].append(timed_evaluation(config, folder / f"eval-checks-{checks}-{attempt}", checks))
+    best = {checks: min(values) for checks, values in seconds.items()}
+    return (f"cache checks: whole evaluation {best[True]:.2f} s with, {best[False]:.2f} s without (best of 2 each); "
+            f"with / without {best[True] / best[False]:.3f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scenes", type=int, default=3, help="scenes of the generated mini (without --dataroot)")
@@ -60,14 +98,16 @@ def main() -> None:
     for name in ("dataroot", "split", "cache", "siamese", "fpointnet"):
         parser.add_argument(f"--{name}")
     parser.add_argument("--version", default="v1.0-mini")
+    parser.add_argument("--checks", action="store_true", help="also time evaluations without the cache's checks")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     with tempfile.TemporaryDirectory() as temporary:
         folder = Path(temporary)
         inputs = ({name: getattr(args, name) for name in ("dataroot", "split", "cache", "siamese", "fpointnet")}
                   if args.dataroot else make_inputs(folder, args.scenes))
+        config = EvalConfig(version=args.version, device=args.device, **inputs)
         started = time.perf_counter()
-        result = run(EvalConfig(version=args.version, device=args.device, **inputs), folder / "eval")
+        result = run(config, folder / "eval")
         total = time.perf_counter() - started
         stages = dict.fromkeys(STAGES, 0.0)
         samples = 0
@@ -77,6 +117,7 @@ def main() -> None:
             for stage in STAGES:
                 stages[stage] += timings[stage]
         finish = result.manifest["timings"]
+        checks = measure_checks(config, folder) if args.checks else None
     print(f"{samples} samples, device {args.device}, torch threads {args.threads}, {torch.__version__}")
     print(f"{'stage':<34}{'ms/sample':>12}")
     for stage, seconds in stages.items():
@@ -89,6 +130,8 @@ def main() -> None:
           f"of the stages' time, everything else {sum(stages.values()) - networks:.2f} s "
           f"({(sum(stages.values()) - networks) / networks:.2f}x the networks)")
     print(f"whole evaluation: {samples / total:.2f} samples/s ({total:.1f} s)")
+    if checks is not None:
+        print(checks)
 
 
 if __name__ == "__main__":

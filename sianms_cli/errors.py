@@ -28,6 +28,24 @@ def _rebuild(cls: type, args: tuple, state: dict) -> SianmsError:
     return error
 
 
+QUOTE_LIMIT = 200
+"""Characters of an offending value an error line quotes: a field holding megabytes is named, not echoed."""
+
+
+def shorten(text: str, limit: int = QUOTE_LIMIT) -> str:
+    """``text`` itself when at most ``limit`` characters long, else its first ``limit`` and how long it was."""
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text):,} characters in all)"
+
+
+def quote(value: object, limit: int = QUOTE_LIMIT) -> str:
+    """An offending value as an error line shows it: a string in quotes, anything else as its ``repr``,
+    cut to ``limit`` characters (:func:`shorten`)."""
+    text = value if isinstance(value, str) else repr(value)
+    if len(text) <= limit:
+        return f"'{text}'" if isinstance(value, str) else text
+    return f"'{text[:limit]}...' ({len(text):,} characters in all)"
+
+
 class DataFormatError(SianmsError):
     """A file, or one record and field in it, does not follow its format.
 
@@ -48,10 +66,10 @@ class DataFormatError(SianmsError):
         self.field = field
         self.detail = message
         where = [self.path]
-        if token is not None:
-            where.append(f"record {token}")
+        if token is not None:  # a record's token or a field's name comes from the file: bounded as any value
+            where.append(f"record {shorten(str(token))}")
         if field is not None:
-            where.append(f"field '{field}'")
+            where.append(f"field '{shorten(str(field))}'")
         super().__init__(": ".join(where) + f": {message}")
 
 

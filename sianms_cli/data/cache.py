@@ -29,6 +29,7 @@ import hashlib
 import json
 import math
 import os
+import stat
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
@@ -39,7 +40,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from sianms_cli.data.schemas import DATASETS, SCHEMA_VERSION, cache_schemas
-from sianms_cli.errors import DataFormatError
+from sianms_cli.errors import DataFormatError, quote
 from sianms_cli.io import (PARTIAL_SUFFIX, AtomicFile, os_errors_as_output_errors, read_json, real_path, sha256_of,
                            write_json)
 
@@ -362,12 +363,154 @@ def require_finite(path: Path, table: pa.Table, columns: list[str]) -> None:
 
 
 def read_dataset(root: Path, name: str, columns: list[str] | None = None) -> pa.Table:
-    """All finished shard files of dataset ``name`` as one table (shard-name order)."""
-    folder = Path(root) / name
-    paths = sorted(folder.glob("*.parquet"))
+    """All shard files of dataset ``name`` as one table (shard-name order), checked (:func:`verified_shards`)."""
+    return pa.concat_tables([read_shard_table(path, columns=columns) for path in verified_shards(root, name)])
+
+
+# --------------------------------------------------------------------------- the manifest enforced
+
+UNIQUE_IDS = {"detections": "detection_id", "frustums": "detection_id"}
+"""The column whose values are unique in a shard file, by dataset (pairs rows have no id)."""
+
+_CHECKED_CACHES: dict[tuple, dict[str, Any]] = {}  # (real path, manifest identity): its manifest, checked
+_CHECKED_FILES: set[tuple] = set()  # (file identity, recorded entry) of every shard file checked in this process
+
+
+def verified_shards(cache: str | Path, dataset: str) -> list[Path]:
+    """The shard files of ``dataset`` (detections, frustums, pairs) that the cache's manifest lists, in
+    shard-name order, once the folder has been checked against the manifest (:func:`verify_cache`):
+    the only way readers get shard paths, so every command refuses what another refuses."""
+    cache = Path(cache)
+    manifest = verify_cache(cache)
+    paths = [cache / name for name in sorted(manifest["files"]) if name.split("/")[0] == dataset]
     if not paths:
-        raise DataFormatError(folder, f"no finished {name} shard files (*.parquet)")
-    return pa.concat_tables([read_shard_table(path, columns=columns) for path in paths])
+        raise DataFormatError(cache / dataset, f"no {dataset} shard files: the cache's manifest lists none")
+    return paths
+
+
+def verified_shard(cache: str | Path, dataset: str, shard: str) -> Path:
+    """The file of one shard of ``dataset`` (``<dataset>/<shard>.parquet``), checked as :func:`verified_shards`'."""
+    cache = Path(cache)
+    name = f"{dataset}/{shard}.parquet"
+    if name not in verify_cache(cache)["files"]:
+        raise DataFormatError(cache / name, f"not listed in {MANIFEST}: the cache has no such shard; {PREPARE_AGAIN}")
+    return cache / name
+
+
+def verify_cache(cache: str | Path) -> dict[str, Any]:
+    """The manifest of a complete cache (:func:`complete_manifest`), once the folder is checked against it.
+
+    Every file the manifest lists must be there, a regular file of the recorded size, row count
+    and SHA-256, with unique ids where the schema has them (:data:`UNIQUE_IDS`); nothing else may
+    be in the shard folders but hidden files (a stray or copied-in shard would be trained on, or
+    scored, while the cache's fingerprint stays the same). The first difference raises one
+    DataFormatError naming the file and what differs.
+
+    Hashing reads every byte once, so each cache is checked once per process (and each file
+    once, however many caches list it): a training's epochs and an evaluation's scenes reuse the
+    result. A manifest or a file replaced since (another identity) is checked again.
+    """
+    cache = Path(cache)
+    manifest = complete_manifest(cache)
+    key = (str(real_path(cache)), _identity(cache / MANIFEST))
+    if key not in _CHECKED_CACHES:
+        listed = _listed_files(cache, manifest)
+        _refuse_unlisted(cache, listed)
+        for name, entry in listed.items():
+            check_shard_file(cache / name, entry)
+        _CHECKED_CACHES[key] = manifest
+    return _CHECKED_CACHES[key]
+
+
+def checked_files() -> set[tuple]:
+    """What this process has checked (:func:`verify_cache`), for worker processes to start from
+    (:func:`trust_checked_files`): the parent checked the cache, a worker need not read it all again."""
+    return set(_CHECKED_FILES)
+
+
+def trust_checked_files(checked: set[tuple]) -> None:
+    """Take the parent's :func:`checked_files` as checked here too (a file changed since has another identity)."""
+    _CHECKED_FILES.update(checked)
+
+
+def _identity(path: Path) -> tuple[int, ...]:
+    """What changes when a file is replaced or edited: device, inode, size and modification time."""
+    stat = path.stat()
+    return stat.st_dev, stat.st_ino, stat.st_size, stat.st_mtime_ns
+
+
+def _listed_files(cache: Path, manifest: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The manifest's ``files``, each checked to be a shard file name with a row count and a SHA-256 (every
+    sianms manifest records both; the size may be missing from an early one, whose SHA-256 covers it)."""
+    where = cache / MANIFEST
+    files = manifest.get("files")
+    if not isinstance(files, dict):
+        raise DataFormatError(where, f"expected an object of shard files, got {type(files).__name__}; "
+                                     f"{PREPARE_AGAIN}", field="files")
+    for name, entry in files.items():
+        dataset, _, file_name = name.partition("/")
+        if dataset not in DATASETS or "/" in file_name or not file_name.endswith(".parquet") or \
+                file_name.startswith("."):
+            raise DataFormatError(where, f"{quote(name)} is not a shard file of a cache; {PREPARE_AGAIN}",
+                                  field="files")
+        if not (isinstance(entry, dict) and _is_count(entry.get("rows"))
+                and (entry.get("bytes") is None or _is_count(entry["bytes"]))
+                and isinstance(entry.get("sha256"), str) and len(entry["sha256"]) == 64):
+            raise DataFormatError(where, f"expected rows, bytes and sha256 of the file; {PREPARE_AGAIN}",
+                                  field=f"files.{name}")
+    return files
+
+
+def _refuse_unlisted(cache: Path, listed: dict[str, Any]) -> None:
+    """Refuse an entry of a shard folder that the manifest does not list (hidden ones aside: a killed
+    write's temporary file, a desktop's index)."""
+    for dataset in DATASETS:
+        folder = cache / dataset
+        if not folder.is_dir():
+            continue
+        for entry in sorted(folder.iterdir()):
+            if not entry.name.startswith(".") and f"{dataset}/{entry.name}" not in listed:
+                raise DataFormatError(entry, f"not listed in {MANIFEST}: the cache holds a file prepare did not "
+                                             f"write there (copied in?); remove it, or {PREPARE_AGAIN}")
+
+
+def check_shard_file(path: Path, entry: dict[str, Any]) -> None:
+    """Refuse a shard file that differs from its manifest ``entry``: missing, not a regular file, another
+    size, row count or SHA-256, or an id twice (:data:`UNIQUE_IDS`). Checked once per process and file."""
+    try:
+        status = path.stat()
+    except FileNotFoundError:
+        raise DataFormatError(path, f"missing: {MANIFEST} lists it; {PREPARE_AGAIN}") from None
+    if not stat.S_ISREG(status.st_mode):
+        raise DataFormatError(path, f"not a regular file; {PREPARE_AGAIN}")
+    size = status.st_size
+    key = ((status.st_dev, status.st_ino, size, status.st_mtime_ns), entry["rows"], entry["sha256"])
+    if key in _CHECKED_FILES:
+        return
+    if entry.get("bytes") is not None and size != entry["bytes"]:
+        raise DataFormatError(path, f"{size:,} bytes where {MANIFEST} records {entry['bytes']:,} (cut short or "
+                                    f"altered); {PREPARE_AGAIN}")
+    if sha256_of(path) != entry["sha256"]:
+        raise DataFormatError(path, f"its content is not what {MANIFEST} records (another SHA-256: altered or "
+                                    f"replaced); {PREPARE_AGAIN}")
+    with reading_shard(path):
+        rows = pq.read_metadata(path).num_rows
+    if rows != entry["rows"]:
+        raise DataFormatError(path, f"{rows:,} rows where {MANIFEST} records {entry['rows']:,}; {PREPARE_AGAIN}")
+    id_column = UNIQUE_IDS.get(path.parent.name)
+    if id_column is not None:
+        require_unique(path, read_shard_table(path, columns=[id_column])[id_column], id_column)
+    _CHECKED_FILES.add(key)
+
+
+def require_unique(path: Path, ids: pa.ChunkedArray, field: str) -> None:
+    """Raise DataFormatError naming the first id that ``ids`` holds more than once."""
+    if pc.count_distinct(ids, mode="all").as_py() == len(ids):
+        return
+    counts = pc.value_counts(ids)
+    repeated = counts.filter(pc.greater(counts.field("counts"), 1))
+    raise DataFormatError(path, f"appears {repeated[0]['counts'].as_py()} times; an id is unique in a shard; "
+                                f"{PREPARE_AGAIN}", token=str(repeated[0]["values"].as_py()), field=field)
 
 
 def roi_feature_shape(path: Path) -> tuple[int, ...]:

@@ -31,7 +31,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from sianms_cli.data.cache import PREPARE_AGAIN, read_shard_table, require_finite
+from sianms_cli.data.cache import PREPARE_AGAIN, read_shard_table, require_finite, verified_shard, verified_shards
 from sianms_cli.errors import DataFormatError
 from sianms_cli.nuscenes.classes import PAPER_CLASSES
 from sianms_cli.nuscenes.loader import MAX_BOX_SIZE
@@ -100,11 +100,8 @@ class ShardFrustums:
 
 
 def frustum_shards(cache: str | Path) -> list[Path]:
-    """The finished ``frustums/*.parquet`` files of a cache, in shard-name order."""
-    paths = sorted((Path(cache) / "frustums").glob("*.parquet"))
-    if not paths:
-        raise DataFormatError(Path(cache) / "frustums", "no finished frustums shard files (*.parquet)")
-    return paths
+    """The ``frustums/`` files of a cache, in shard-name order, checked against its manifest."""
+    return verified_shards(cache, "frustums")
 
 
 def _box_heights(frustums_path: Path, detection_id: pa.ChunkedArray) -> np.ndarray:
@@ -112,9 +109,7 @@ def _box_heights(frustums_path: Path, detection_id: pa.ChunkedArray) -> np.ndarr
 
     Looked up by id, keeping the frustums' row order (a hash join would not promise it).
     """
-    path = frustums_path.parent.parent / "detections" / frustums_path.name
-    if not path.is_file():
-        raise DataFormatError(path, "missing: the frustums shard has no detections file (needed for box heights)")
+    path = verified_shard(frustums_path.parent.parent, "detections", frustums_path.stem)
     table = read_shard_table(path, columns=["detection_id", "y1", "y2"])
     where = pc.index_in(detection_id, value_set=table["detection_id"].combine_chunks())
     if where.null_count:
@@ -155,9 +150,7 @@ def require_frustum_shapes(path: Path, table: pa.Table) -> None:
     def lengths(name: str) -> np.ndarray:
         return pc.list_value_length(table[name]).fill_null(-1).to_numpy(zero_copy_only=False)
 
-    points = lengths("x")
-    for name in ("y", "z", "intensity", "label"):
-        fail(np.flatnonzero(lengths(name) != points), name, "not one value per point of x")
+    require_point_lists(path, table)
     labels = table["label"].combine_chunks()
     wrong = ~np.isin(pc.list_flatten(labels).to_numpy(zero_copy_only=False), (0, 1))
     fail(pc.list_parent_indices(labels).to_numpy()[wrong], "label", "expected 0 or 1 per point")
@@ -168,6 +161,24 @@ def require_frustum_shapes(path: Path, table: pa.Table) -> None:
     bad = pc.list_flatten(sizes).to_numpy(zero_copy_only=False)
     bad = (bad <= 0) | (bad > MAX_BOX_SIZE)
     fail(pc.list_parent_indices(sizes).to_numpy()[bad], "box_size", f"expected sizes in (0, {MAX_BOX_SIZE:g}] m")
+
+
+POINT_COLUMNS = ("x", "y", "z", "intensity", "label")
+"""The per-point list columns of a frustums file: one value per point each."""
+
+
+def require_point_lists(path: Path, table: pa.Table) -> None:
+    """Raise DataFormatError naming the first record (``detection_id``) and field of a frustums table whose
+    point lists (:data:`POINT_COLUMNS`, those the table has besides ``x``) are out of step with ``x``'s:
+    every reader of frustums checks it (an edited file had been a traceback in `sianms eval`)."""
+    points = pc.list_value_length(table["x"]).fill_null(-1).to_numpy(zero_copy_only=False)
+    for name in POINT_COLUMNS[1:]:
+        if name in table.column_names:
+            wrong = np.flatnonzero(pc.list_value_length(table[name]).fill_null(-1).to_numpy(zero_copy_only=False)
+                                   != points)
+            if len(wrong):
+                raise DataFormatError(path, f"not one value per point of x; {PREPARE_AGAIN}",
+                                      token=str(table["detection_id"][int(wrong[0])]), field=name)
 
 
 def frustums_of_table(table: pa.Table, selection: FrustumSelection, union: bool = False) -> ShardFrustums:

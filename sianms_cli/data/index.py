@@ -12,8 +12,7 @@ from __future__ import annotations
 from collections import defaultdict
 from pathlib import Path
 
-from sianms_cli.data.cache import read_shard_table
-from sianms_cli.errors import DataFormatError
+from sianms_cli.data.cache import read_shard_table, verified_shards
 
 PairIndex = dict[tuple[str, str], dict[str, list[str]]]
 
@@ -23,12 +22,8 @@ def build_pair_index(cache: str | Path) -> PairIndex:
 
     Reads only four columns, one shard file at a time. Detection ids are in file order.
     """
-    folder = Path(cache) / "detections"
-    paths = sorted(folder.glob("*.parquet"))
-    if not paths:
-        raise DataFormatError(folder, "no finished detections shard files (*.parquet)")
     index: PairIndex = defaultdict(lambda: defaultdict(list))
-    for path in paths:
+    for path in verified_shards(cache, "detections"):
         table = read_shard_table(path, columns=["scene_token", "instance_token", "detection_id", "overlap_pairs"])
         for scene, instance, detection, pairs in zip(*(table.column(i).to_pylist() for i in range(4))):
             if instance is None:

@@ -34,7 +34,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from sianms_cli.data.cache import MANIFEST, complete_manifest, read_shard_table, shard_records
+from sianms_cli.data.cache import MANIFEST, complete_manifest, read_shard_table, shard_records, verified_shard
 from sianms_cli.data.frustum_dataset import FrustumSelection, frustum_shards
 from sianms_cli.data.schemas import FRUSTUMS_SCHEMA, with_metadata
 from sianms_cli.errors import DataFormatError, SianmsError
@@ -163,12 +163,8 @@ def union_frustums(db, cache: str | Path, shard: str, selection: FrustumSelectio
     from sianms_cli.prepare.sample import lidar_points_global, scene_records
 
     cache = Path(cache)
-    pairs_path = cache / "pairs" / f"{shard}.parquet"
-    detections_path = cache / "detections" / f"{shard}.parquet"
-    frustums_path = cache / "frustums" / f"{shard}.parquet"
-    for path in (pairs_path, detections_path, frustums_path):
-        if not path.is_file():
-            raise DataFormatError(path, "missing: --multiview needs the shard's pairs, detections and frustums")
+    pairs_path, detections_path, frustums_path = (verified_shard(cache, dataset, shard)
+                                                  for dataset in ("pairs", "detections", "frustums"))
     pairs = read_shard_table(pairs_path, columns=_PAIR_COLUMNS)
     pairs = pairs.filter(pc.is_in(pairs["class"], pa.array(list(selection.classes))))
     detections = read_shard_table(detections_path, columns=_DETECTION_COLUMNS)

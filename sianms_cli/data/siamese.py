@@ -30,7 +30,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from sianms_cli.data.cache import decode_roi_features, read_shard_table, roi_feature_shape
+from sianms_cli.data.cache import (decode_roi_features, read_shard_table, roi_feature_shape, verified_shard,
+                                   verified_shards)
 from sianms_cli.errors import DataFormatError
 
 DETECTION_COLUMNS = ["detection_id", "scene_token", "sample_token", "camera", "instance_token", "overlap_pairs",
@@ -39,12 +40,8 @@ PAIR_COLUMNS = ["scene_token", "instance_token", "pair", "reference_detection_id
 
 
 def shard_paths(cache: str | Path) -> list[Path]:
-    """The finished detections files of a cache, in name order (one per scene)."""
-    folder = Path(cache) / "detections"
-    paths = sorted(folder.glob("*.parquet"))
-    if not paths:
-        raise DataFormatError(folder, "no finished detections shard files (*.parquet); run `sianms prepare` first")
-    return paths
+    """The detections files of a cache, in name order (one per scene), checked against its manifest."""
+    return verified_shards(cache, "detections")
 
 
 def cache_feature_shape(cache: str | Path) -> tuple[int, int, int]:
@@ -140,10 +137,7 @@ def iter_scenes(cache: str | Path, order: np.ndarray | None = None) -> Iterator[
     for index in (range(len(paths)) if order is None else order):
         path = paths[index]
         detections = read_shard_table(path, columns=DETECTION_COLUMNS)
-        pairs_path = Path(cache) / "pairs" / path.name
-        if not pairs_path.is_file():
-            raise DataFormatError(pairs_path, "missing: every detections shard has a pairs shard")
-        pairs = read_shard_table(pairs_path, columns=PAIR_COLUMNS)
+        pairs = read_shard_table(verified_shard(cache, "pairs", path.stem), columns=PAIR_COLUMNS)
         scene_tokens = detections.column("scene_token").to_pylist()
         for token in dict.fromkeys(scene_tokens):
             if len(set(scene_tokens)) == 1:

@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any, Iterator
 
 import pyarrow.parquet as pq
 
-from sianms_cli.data.cache import cache_fingerprint, complete_manifest
+from sianms_cli.data.cache import cache_fingerprint, checked_files, trust_checked_files, verified_shard, verify_cache
 from sianms_cli.detection2d.classes import check_classes
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError, check_seed, check_workers
 from sianms_cli.geometry.bev import AXIS_MODES
@@ -134,8 +134,9 @@ class EvalResult:
 
 
 def cache_settings(cache: Path, db: NuScenesDB, split: str, scenes: list[str]) -> dict[str, Any]:
-    """The cache's resolved prepare config, checked to be a complete cache of this dataset's split."""
-    config = complete_manifest(cache)["config"]
+    """The cache's resolved prepare config, checked to be a complete cache of this dataset's split whose
+    folder holds what its manifest lists (:func:`~sianms_cli.data.cache.verify_cache`)."""
+    config = verify_cache(cache)["config"]
     where = cache / "manifest.json"
     if config.get("dataset_sha256") != dataset_fingerprint(db.table_root):
         raise DataFormatError(where, "the cache was prepared from another dataset than --dataroot/--version",
@@ -221,7 +222,7 @@ def resolved_config(config: EvalConfig, db: NuScenesDB, scenes: list[str], model
         data["thresholds_from"] = calibration.identity
     data.update(sianms_classes=list(config.sianms_classes), dis_thr=models.dis_thr, methods=list(config.method_names),
                 dataset_sha256=dataset_fingerprint(db.table_root), split_scenes=scenes,
-                cache_sha256=cache_fingerprint(complete_manifest(config.cache)),
+                cache_sha256=cache_fingerprint(verify_cache(config.cache)),
                 siamese_sha256=models.siamese_sha256, fpointnet_sha256=models.fpointnet_sha256)
     return data
 
@@ -373,7 +374,8 @@ def write_scene(evaluator: SceneEvaluator, cache: Path, out: Path, token: str, n
         path = scene_path(out, name)
         if path.is_file():
             return "finished"
-        table = evaluator.scene(cache / "detections" / f"{name}.parquet", cache / "frustums" / f"{name}.parquet", token)
+        table = evaluator.scene(verified_shard(cache, "detections", name), verified_shard(cache, "frustums", name),
+                                token)
         with atomic_file(path) as handle:
             pq.write_table(table, handle, compression="zstd")
         return "written"
@@ -386,10 +388,11 @@ def write_scene(evaluator: SceneEvaluator, cache: Path, out: Path, token: str, n
 _WORKER: tuple[SceneEvaluator, Path, Path] | None = None
 
 
-def _init_worker(config: EvalConfig, settings: SceneSettings, out: str) -> None:
+def _init_worker(config: EvalConfig, settings: SceneSettings, out: str, checked: set[tuple]) -> None:
     global _WORKER
     import torch
 
+    trust_checked_files(checked)  # the parent read and checked the cache's files at its start
     torch.set_num_threads(TASK_TORCH_THREADS)
     models = load_models(config)
     db = NuScenesDB(config.dataroot, config.version)
@@ -410,7 +413,7 @@ def _run_scenes(evaluator: SceneEvaluator, config: EvalConfig, settings: SceneSe
             for token, name in todo:
                 yield name, write_scene(evaluator, Path(config.cache), out, token, name)
         return
-    with worker_pool(min(workers, len(todo)), _init_worker, (config, settings, str(out))) as pool:
+    with worker_pool(min(workers, len(todo)), _init_worker, (config, settings, str(out), checked_files())) as pool:
         yield from pool.imap_unordered(_run_in_worker, todo)
 
 

@@ -37,6 +37,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from sianms_cli.data.cache import decode_roi_features, read_shard_table, require_finite, roi_feature_shape
+from sianms_cli.data.frustum_dataset import require_point_lists
 from sianms_cli.geometry.rig import CameraRig
 from sianms_cli.geometry.transforms import sensor_to_global
 from sianms_cli.nuscenes.loader import NuScenesDB
@@ -154,6 +155,7 @@ class SceneEvaluator:
             require_finite(detections_path, detections, NUMERIC_DETECTION_COLUMNS)
             frustum_table = read_shard_table(frustums_path, columns=FRUSTUM_COLUMNS)
             require_finite(frustums_path, frustum_table, NUMERIC_FRUSTUM_COLUMNS)
+            require_point_lists(frustums_path, frustum_table)
             frustums = _frustum_points(frustum_table, detections["detection_id"])
             records = scene_records(self.db, scene_token, self.settings.sweeps)
         samples = detections["sample_token"].to_numpy(zero_copy_only=False).astype(str)

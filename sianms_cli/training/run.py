@@ -62,7 +62,7 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 import torch
 
-from sianms_cli.data.cache import cache_fingerprint, complete_manifest
+from sianms_cli.data.cache import cache_fingerprint, verify_cache
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
 from sianms_cli.json_stream import is_number
 from sianms_cli.io import (FolderBusyError, exclusive_lock, first_foreign_file, make_folder, partial_of, read_json,
@@ -643,8 +643,9 @@ INPUTS = "inputs"  # a checkpoint's extra: the content fingerprints of the cache
 
 
 def cache_inputs(cache: str | None, val_cache: str | None) -> dict[str, str]:
-    """The content fingerprints of a training's caches, by flag (:func:`cache_fingerprint`)."""
-    return {flag: cache_fingerprint(complete_manifest(path))
+    """The content fingerprints of a training's caches, by flag (:func:`cache_fingerprint`), each cache's
+    folder checked against its manifest first (:func:`~sianms_cli.data.cache.verify_cache`, once per command)."""
+    return {flag: cache_fingerprint(verify_cache(path))
             for flag, path in (("--cache", cache), ("--val-cache", val_cache)) if path is not None}
 
 

@@ -2,11 +2,13 @@
 file changed size is not finished (a rerun rebuilds it), and readers refuse an incomplete cache."""
 
 import json
+import re
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from cache_records import record_again
 
 from sianms_cli.data.cache import (
     PREPARE_AGAIN, ShardWriter, cache_fingerprint, complete_manifest, read_dataset, read_shard_table, roi_feature_shape,
@@ -32,6 +34,12 @@ def write_shard(root, shard="s"):
     with ShardWriter(root, shard, schemas) as writer:
         writer.write("detections", pa.Table.from_pylist([row], schema=schemas["detections"]))
         return writer.commit({"samples": 1})
+
+
+def write_cache(root, shard="s"):
+    """A complete cache of one :func:`write_shard` shard (its manifest written)."""
+    write_shard(root, shard)
+    write_manifest(root, {"seed": 0}, [shard], root)
 
 
 def truncate(path, size=100):
@@ -94,23 +102,28 @@ def test_a_completion_record_of_another_form_is_not_finished(tmp_path, edit):
 
 
 def test_every_reader_names_the_truncated_shard(tmp_path):
-    write_shard(tmp_path)
+    """A file reader names the damaged file; a cache reader refuses it sooner, by its manifest size."""
+    write_cache(tmp_path)
     detections, frustums, pairs = (tmp_path / name / "s.parquet" for name in ("detections", "frustums", "pairs"))
+    size = pairs.stat().st_size
     truncate(pairs)
     with pytest.raises(DataFormatError) as error:
         list(iter_scenes(tmp_path))
-    assert str(error.value) == f"{pairs}: {UNREADABLE}"
+    assert str(error.value) == (f"{pairs}: 100 bytes where manifest.json records {size:,} (cut short or altered); "
+                                f"{PREPARE_AGAIN}")
     truncate(frustums)
     with pytest.raises(DataFormatError) as error:
         read_shard(frustums, FrustumSelection())
     assert str(error.value) == f"{frustums}: {UNREADABLE}"
     truncate(detections)
     for read in (lambda: read_shard_table(detections), lambda: roi_feature_shape(detections),
-                 lambda: read_dataset(tmp_path, "detections"), lambda: build_pair_index(tmp_path),
                  lambda: SceneEvaluator(None, None, None, None).scene(detections, frustums, "scene")):
         with pytest.raises(DataFormatError) as error:
             read()
         assert str(error.value) == f"{detections}: {UNREADABLE}"
+    for read in (lambda: read_dataset(tmp_path, "detections"), lambda: build_pair_index(tmp_path)):
+        with pytest.raises(DataFormatError, match="^" + re.escape(f"{detections}: 100 bytes where manifest.json")):
+            read()
 
 
 def edit_roi_feature_shape(path, shape):
@@ -122,9 +135,10 @@ def edit_roi_feature_shape(path, shape):
 
 @pytest.mark.parametrize("shape", [b"1,x,2", b"1,2", b"1,2,2,2", b"0,2,2", b"-1,2,2", b"1,2,99999999", b""])
 def test_an_edited_roi_feature_shape_is_named(tmp_path, shape):
-    write_shard(tmp_path)
+    write_cache(tmp_path)
     detections = tmp_path / "detections" / "s.parquet"
     edit_roi_feature_shape(detections, shape)
+    record_again(tmp_path)
     for read in (lambda: roi_feature_shape(detections), lambda: list(iter_scenes(tmp_path))):
         with pytest.raises(DataFormatError) as error:
             read()
@@ -133,9 +147,10 @@ def test_an_edited_roi_feature_shape_is_named(tmp_path, shape):
 
 
 def test_features_of_another_size_than_the_schema_says_are_named(tmp_path):
-    write_shard(tmp_path)
+    write_cache(tmp_path)
     detections = tmp_path / "detections" / "s.parquet"
     edit_roi_feature_shape(detections, b"2,2,2")
+    record_again(tmp_path)
     with pytest.raises(DataFormatError) as error:
         list(iter_scenes(tmp_path))
     assert str(error.value) == (f"{detections}: field 'roi_feature': row 0: a feature of 8 bytes where the shape "
@@ -226,9 +241,10 @@ def _rewrite(path, edit):
 def test_an_edited_siamese_column_is_named_by_file_and_field(tmp_path, dataset, edit, field, problem):
     """A string overlap_pairs had been an ArrowNotImplementedError traceback, a NaN feature a
     ValueError in the validation's ROC or a "lower --lr" (training diverged)."""
-    write_shard(tmp_path)
+    write_cache(tmp_path)
     path = tmp_path / dataset / "s.parquet"
     _rewrite(path, edit)
+    record_again(tmp_path)
     with pytest.raises(DataFormatError) as error:
         list(iter_scenes(tmp_path))
     assert str(error.value) == f"{path}: field '{field}': {problem}; {PREPARE_AGAIN}"
@@ -236,10 +252,11 @@ def test_an_edited_siamese_column_is_named_by_file_and_field(tmp_path, dataset, 
 
 def test_a_pairs_row_without_its_pair_is_named(tmp_path):
     """A null pair had ended in a TypeError while sorting the pair names."""
-    write_shard(tmp_path)
+    write_cache(tmp_path)
     path = tmp_path / "pairs" / "s.parquet"
     row = {name: None for name in cache_schemas((1, 2, 2), "tiny")["pairs"].names}
     row.update(scene_token="scene", sample_token="sample", reference_detection_id="d", positive_detection_id="d")
     pq.write_table(pa.Table.from_pylist([row], schema=cache_schemas((1, 2, 2), "tiny")["pairs"]), path)
+    record_again(tmp_path)
     with pytest.raises(DataFormatError, match=f"^{path}: field 'pair': a pairs row without its camera pair$"):
         list(iter_scenes(tmp_path))

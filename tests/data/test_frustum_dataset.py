@@ -6,6 +6,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from cache_records import record_again
 
 from sianms_cli.data.frustum_dataset import (
     Augmentation,
@@ -59,7 +60,7 @@ def write_cache(root, shards):
         columns = {f.name: [r[f.name] for r in frustums] for f in FRUSTUMS_SCHEMA}
         pq.write_table(pa.table(columns, schema=FRUSTUMS_SCHEMA), root / "frustums" / f"{name}.parquet")
         pq.write_table(pa.Table.from_pylist([d for _, d in rows]), root / "detections" / f"{name}.parquet")
-    return root
+    return record_again(root)
 
 
 @pytest.fixture(scope="module")

@@ -7,6 +7,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 import torch
+from cache_records import record_again
 
 from sianms_cli.data import siamese as data
 from sianms_cli.data.schemas import cache_schemas
@@ -120,7 +121,7 @@ def write_cache(root: Path, scenes: dict[str, list], pairs: dict[str, list]) -> 
                   "positive_detection_id": [f"{name}_{b}" for _, b in pairs[name]]}
         (root / "pairs").mkdir(parents=True, exist_ok=True)
         pq.write_table(pa.table(table, schema=schemas["pairs"]), root / "pairs" / f"{name}.parquet")
-    return root
+    return record_again(root)
 
 
 @pytest.fixture
@@ -170,7 +171,7 @@ def test_scenes_are_read_one_at_a_time_with_only_the_needed_columns(two_scene_ca
 
 
 def test_a_cache_without_detections_is_a_clear_error(tmp_path):
-    with pytest.raises(DataFormatError, match="no finished detections shard files"):
+    with pytest.raises(DataFormatError, match="not a `sianms prepare` cache"):
         list(epoch_batches(tmp_path, 2, np.random.default_rng(0)))
 
 
@@ -180,6 +181,7 @@ def test_a_pairs_row_naming_an_unknown_detection_is_a_clear_error(tmp_path):
     ids = pa.array(["scene-a_99"], type=pa.string())
     pq.write_table(table.set_column(table.schema.get_field_index("positive_detection_id"), "positive_detection_id",
                                     ids), cache / "pairs" / "scene-a.parquet")
+    record_again(cache)
     with pytest.raises(DataFormatError, match="pairs/scene-a.parquet: field 'positive_detection_id': a pairs row names"):
         list(data.iter_scenes(cache))
 

@@ -132,11 +132,13 @@ def test_a_folder_without_manifest_is_not_a_cache(tiny_caches, tmp_path, kind, f
 def test_a_truncated_shard_is_one_error_line(tiny_caches, tmp_path, kind, flags, name):
     cache = shutil.copytree(tiny_caches[0], tmp_path / "cache")
     (shard,) = sorted((cache / name).glob("*.parquet"))
+    size = shard.stat().st_size
     with open(shard, "r+b") as handle:
         handle.truncate(2000)
     done = invoke(kind, "--cache", str(cache), "--out", str(tmp_path / "run"), *flags)
     assert done.exit_code == 2 and done.stderr.strip().splitlines() == [
-        f"error: {shard}: not a readable Parquet file; rerun `sianms prepare` on the cache to rebuild it"]
+        f"error: {shard}: 2,000 bytes where manifest.json records {size:,} (cut short or altered); rerun `sianms "
+        "prepare` on the cache to rebuild it"]
     assert not (tmp_path / "run").exists()
 
 
