@@ -12,7 +12,7 @@ from typing import Callable, NoReturn
 import typer
 
 from sianms_cli import __version__
-from sianms_cli.errors import SianmsError, check_per_cpu_count
+from sianms_cli.errors import SianmsError, check_per_cpu_count, shorten
 from sianms_cli.io import describe_os_error, expand_home
 from sianms_cli.processes import Terminated, signal_received
 
@@ -167,6 +167,40 @@ def home_expanded(value: object) -> object:
     return expand_home(value) if isinstance(value, Path) else value
 
 
+def refuse_undecodable(function: Callable, arguments: dict[str, object]) -> None:
+    """Refuse, naming its flag, a value of the command line that is not valid UTF-8 (``--out $'x\\xff'``):
+    Python holds its bytes as lone surrogates, which any output that records the path (a manifest, a
+    config, a Parquet file's metadata) cannot hold, so a run would write a cache that no command can
+    then read. Checked before the command runs: nothing is written."""
+    for name, value in arguments.items():
+        for item in value if isinstance(value, (list, tuple)) else (value,):
+            if not isinstance(item, (str, Path)):
+                continue
+            text = str(item)
+            try:
+                text.encode("utf-8")
+            except UnicodeEncodeError as error:
+                raw = os.fsencode(text)
+                shown = raw.decode("utf-8", "backslashreplace")
+                position = len(text[:error.start].encode("utf-8", "surrogateescape"))
+                raise SianmsError(f"{flag_name(function, name)}: {shorten(shown)} is not valid UTF-8 (byte "
+                                  f"0x{raw[position]:02x} at {position}); sianms records its paths as text: rename "
+                                  "it or choose another path") from None
+
+
+def flag_name(function: Callable, name: str) -> str:
+    """How the command line spells the parameter ``name`` of a command ``function``: its option's long
+    flag (``--json`` for ``as_json``), or its argument's metavar (``EVAL``)."""
+    import inspect
+
+    declared = inspect.signature(function).parameters.get(name)
+    default = declared.default if declared is not None else None
+    if isinstance(default, typer.models.ArgumentInfo):
+        return default.metavar or name.upper()
+    flags = [flag for flag in getattr(default, "param_decls", None) or () if flag.startswith("--")]
+    return max(flags, key=len).split("/")[0] if flags else f"--{name.replace('_', '-')}"
+
+
 def is_peer_lost(error: BaseException) -> bool:
     """Whether a collective failed because another rank of this torchrun run is gone (killed,
     out of memory, its own error): torch's distributed errors, or gloo's socket read failing."""
@@ -206,6 +240,7 @@ def command(name: str, group: typer.Typer | None = None) -> Callable[[Callable],
             rank = follower_rank()
             prefix = "error: " if rank is None else f"error: rank {rank}: "
             try:
+                refuse_undecodable(function, kwargs)
                 return function(*args, **{name: home_expanded(value) for name, value in kwargs.items()})
             except SianmsError as error:
                 say_error(f"{prefix}{error}")
