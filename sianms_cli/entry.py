@@ -1,8 +1,8 @@
 """The ``sianms`` executable: signals handled from its first statement, then the command line.
 
 Importing the command line takes a few tenths of a second (typer, numpy, the subcommands); a
-SIGINT or SIGTERM then would end in a traceback from the middle of an import. Until the command
-line is ready, either signal ends the process at once with the interrupted line: nothing has
+SIGINT, SIGTERM or SIGHUP then would end in a traceback from the middle of an import. Until the command
+line is ready, each ends the process at once with the interrupted line: nothing has
 been written yet. From then on :func:`sianms_cli.cli.main` handles them.
 
 Before numpy or torch loads, the arithmetic libraries are asked for their AVX2 kernels
@@ -16,14 +16,13 @@ import signal
 
 
 def _end_while_starting(signum: int, frame: object) -> None:
-    name = "SIGTERM" if signum == signal.SIGTERM else "SIGINT"
-    os.write(2, f"interrupted ({name}) while starting; nothing was written\n".encode())
+    os.write(2, f"interrupted ({signal.Signals(signum).name}) while starting; nothing was written\n".encode())
     os._exit(128 + signum)
 
 
 def main() -> None:
-    signal.signal(signal.SIGINT, _end_while_starting)
-    signal.signal(signal.SIGTERM, _end_while_starting)
+    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(signum, _end_while_starting)
     import sys
 
     from sianms_cli.kernels import native_by_default, use_avx2_kernels

@@ -1,9 +1,9 @@
-"""Worker processes that stop when the run stops, and SIGTERM handled like Ctrl-C.
+"""Worker processes that stop when the run stops, and SIGTERM and SIGHUP handled like Ctrl-C.
 
 A multi-process command (synth, prepare) runs its workers in :func:`worker_pool`. Workers
-ignore SIGINT, so a Ctrl-C in the terminal (sent to the whole process group) reaches the
-parent only; :func:`terminate_on_sigterm` makes SIGTERM raise :class:`Terminated` (a
-KeyboardInterrupt) there too. Either way the exception unwinds the parent through its
+ignore SIGINT and SIGHUP, so a Ctrl-C in the terminal, or the terminal closing (sent to the whole
+process group), reaches the parent only; :func:`interrupt_on_signals` makes SIGTERM and SIGHUP (an
+ssh session dropped, a terminal closed) raise :class:`Terminated` (a KeyboardInterrupt) there too. Either way the exception unwinds the parent through its
 cleanup code, and leaving :func:`worker_pool` terminates and joins every worker: no
 process outlives the run and no worker writes after the parent has cleaned up. A parent
 killed outright (SIGKILL, the OOM killer) cleans nothing up; its workers notice they are
@@ -51,15 +51,27 @@ def task_torch_threads() -> Iterator[None]:
 
 
 class Terminated(KeyboardInterrupt):
-    """The process received SIGTERM."""
+    """The process received SIGTERM, or SIGHUP (``signum``)."""
 
+    def __init__(self, signum: int = signal.SIGTERM) -> None:
+        super().__init__()
+        self.signum = signum
+
+
+INTERRUPTING = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+"""The signals a run stops on, cleaning up: it ends with 128 + the signal's number (130, 143, 129)."""
 
 _SIGNALS_RECEIVED: list[int] = []
 
 
 def _raise_interrupt(signum: int, frame: Any) -> None:
     _SIGNALS_RECEIVED.append(signum)
-    raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+    raise KeyboardInterrupt() if signum == signal.SIGINT else Terminated(signum)
+
+
+def signal_name(signum: int) -> str:
+    """``SIGINT``, ``SIGTERM``, ``SIGHUP``."""
+    return signal.Signals(signum).name
 
 
 _DELIVER_AGAIN = threading.Event()
@@ -85,12 +97,12 @@ def _interrupt_again(unraisable: Any) -> None:
 
 
 def interrupt_on_signals() -> None:
-    """From now on SIGINT raises KeyboardInterrupt and SIGTERM :class:`Terminated` in the main
-    thread, and :func:`signal_received` remembers the first: a library that swallows the
+    """From now on SIGINT raises KeyboardInterrupt and SIGTERM or SIGHUP :class:`Terminated` in the
+    main thread, and :func:`signal_received` remembers the first: a library that swallows the
     exception (a C callback, an ``except`` around an import) cannot make a run look finished,
     and one raised where Python cannot raise it is delivered again (:func:`_interrupt_again`)."""
-    signal.signal(signal.SIGINT, _raise_interrupt)
-    signal.signal(signal.SIGTERM, _raise_interrupt)
+    for signum in INTERRUPTING:
+        signal.signal(signum, _raise_interrupt)
     if _ignore_signals_at_shutdown not in _AT_SHUTDOWN:  # registered first, so it runs last
         atexit.register(_ignore_signals_at_shutdown)
         _AT_SHUTDOWN.append(_ignore_signals_at_shutdown)
@@ -109,12 +121,12 @@ def _ignore_signals_at_shutdown() -> None:
     process: 130 or 143 without a word, for a command that had finished. An ignored signal keeps
     the code the command chose; the handlers before this one still end the process at once
     (:func:`exit_on_signals`)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    for signum in INTERRUPTING:
+        signal.signal(signum, signal.SIG_IGN)
 
 
 def exit_on_signals(code: int) -> None:
-    """From now on SIGINT and SIGTERM end the process at once with ``code``: the command has
+    """From now on SIGINT, SIGTERM and SIGHUP end the process at once with ``code``: the command has
     finished and said how. A signal during interpreter shutdown (torchrun stopping every rank
     once one failed) would otherwise raise inside a library's finaliser and print its traceback."""
 
@@ -126,12 +138,12 @@ def exit_on_signals(code: int) -> None:
                 pass
         os._exit(code)
 
-    signal.signal(signal.SIGINT, exit_now)
-    signal.signal(signal.SIGTERM, exit_now)
+    for signum in INTERRUPTING:
+        signal.signal(signum, exit_now)
 
 
 def signal_received() -> int | None:
-    """The first SIGINT or SIGTERM since :func:`interrupt_on_signals`, or None."""
+    """The first SIGINT, SIGTERM or SIGHUP since :func:`interrupt_on_signals`, or None."""
     return _SIGNALS_RECEIVED[0] if _SIGNALS_RECEIVED else None
 
 
@@ -158,6 +170,7 @@ def _discard_and_exit(signum: int, frame: Any) -> None:
 
 def _start_worker(parent: int, initializer: Callable[..., None] | None, initargs: tuple) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)  # a closed terminal signals the group: the parent stops the pool
     signal.signal(signal.SIGTERM, _discard_and_exit)
     threading.Thread(target=_exit_when_orphaned, args=(parent,), daemon=True).start()
     if initializer is not None:

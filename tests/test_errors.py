@@ -69,6 +69,16 @@ def test_under_torchrun_only_rank_0_says_it_was_interrupted(monkeypatch, rank):
     assert result.output == ("" if rank == "1" else said)
 
 
+def test_a_hang_up_ends_a_command_as_sigterm_does_with_129(monkeypatch):
+    """A closed terminal or a dropped ssh session (SIGHUP) had ended a run with 129 and no word."""
+    from typer.testing import CliRunner
+
+    monkeypatch.delenv("RANK", raising=False)
+    result = CliRunner().invoke(probe_app(Terminated(signal.SIGHUP)), ["fail"])
+    assert (result.exit_code, result.output) == (129, "interrupted (SIGHUP); finished outputs are kept, a rerun "
+                                                      "resumes or starts afresh\n")
+
+
 @pytest.mark.parametrize("rank, prefix", [(None, "error: "), ("0", "error: "), ("3", "error: rank 3: ")])
 def test_under_torchrun_another_ranks_error_names_its_rank(monkeypatch, rank, prefix):
     from typer.testing import CliRunner
@@ -119,12 +129,12 @@ def test_a_signal_after_the_error_line_keeps_the_one_line_and_its_code(monkeypat
     assert capsys.readouterr().err == "error: another process of this torchrun run stopped\n"
 
 
-@pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+@pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143), (signal.SIGHUP, 129)])
 def test_a_signal_while_the_command_line_starts_is_one_line(signum, code):
-    """The executable handles both signals from its first statement: no traceback out of an import."""
-    probe = ("import os, time; from sianms_cli import entry; entry.signal.signal(entry.signal.SIGINT, "
-             "entry._end_while_starting); entry.signal.signal(entry.signal.SIGTERM, entry._end_while_starting); "
-             f"os.kill(os.getpid(), {int(signum)}); time.sleep(10)")
+    """The executable handles the three signals from its first statement: no traceback out of an import."""
+    probe = ("import os, time; from sianms_cli import entry; "
+             "[entry.signal.signal(s, entry._end_while_starting) for s in (entry.signal.SIGINT, entry.signal.SIGTERM, "
+             f"entry.signal.SIGHUP)]; os.kill(os.getpid(), {int(signum)}); time.sleep(10)")
     done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
     name = signal.Signals(signum).name
     assert (done.returncode, done.stderr) == (code, f"interrupted ({name}) while starting; nothing was written\n")
@@ -234,7 +244,7 @@ def test_a_symbolic_link_loop_is_one_error_line(tmp_path, tiny_dataroot, command
     assert result.stderr.startswith("error: ") and str(tmp_path / "a") in result.stderr
 
 
-@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
 def test_a_signal_in_the_interpreter_teardown_keeps_the_code_the_command_chose(signum):
     """Python puts back a handled signal's default action as it finalises: one landing in the
     teardown (a second or more once torch is loaded) had killed a finished command, 130 or 143

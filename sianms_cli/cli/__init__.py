@@ -14,7 +14,7 @@ def main() -> None:
     """Console entry point. A flag the parser refuses (a bad type, a value out of range, an
     unknown or missing option) ends, as every other bad input, in one ``error:`` line and
     exit code 2; a bare group (``sianms``, ``sianms train``) prints its help, then that line.
-    SIGINT and SIGTERM end in 130 and 143 with one ``interrupted`` line, wherever they land
+    SIGINT, SIGTERM and SIGHUP end in 130, 143 and 129 with one ``interrupted`` line, wherever they land
     (:func:`exit_code_after_signals`); once the command has ended, they end the process at once
     with the code it chose (:func:`~sianms_cli.processes.exit_on_signals`)."""
     interrupt_on_signals()

@@ -14,7 +14,7 @@ import typer
 from sianms_cli import __version__
 from sianms_cli.errors import SianmsError, check_per_cpu_count, shorten
 from sianms_cli.io import describe_os_error, expand_home
-from sianms_cli.processes import Terminated, signal_received
+from sianms_cli.processes import Terminated, signal_name, signal_received
 
 INTERRUPTED = "finished outputs are kept, a rerun resumes or starts afresh"
 _ending_said: list[str] = []  # the one line a run ends with, once said: "interrupted" or "error"
@@ -118,10 +118,10 @@ def use_torch_threads(threads: int | None) -> None:
         torch.set_num_threads(threads)
 
 
-def say_interrupted(terminated: bool) -> None:
-    """The one line an interrupted run ends with (rank 0's alone under torchrun)."""
+def say_interrupted(signum: int) -> None:
+    """The one line an interrupted run ends with (rank 0's alone under torchrun), naming the signal."""
     if follower_rank() is None:
-        typer.echo(f"interrupted ({'SIGTERM' if terminated else 'SIGINT'}); {INTERRUPTED}", err=True)
+        typer.echo(f"interrupted ({signal_name(signum)}); {INTERRUPTED}", err=True)
     _ending_said.append("interrupted")
 
 
@@ -134,7 +134,7 @@ def say_error(line: str) -> None:
 
 
 def exit_code_after_signals(code: int) -> int:
-    """``code``, or 130 / 143 when SIGINT / SIGTERM came, with the interrupted line if the command
+    """``code``, or 130 / 143 / 129 when SIGINT / SIGTERM / SIGHUP came, with the interrupted line if the command
     did not say it: the signal came while typer parsed the command line, or a library swallowed
     the KeyboardInterrupt and the run went on. A command that already failed with its error line
     keeps its code and its one line: torchrun signals a rank whose peer died just after that rank
@@ -143,7 +143,7 @@ def exit_code_after_signals(code: int) -> int:
     if signum is None or "error" in _ending_said:
         return code
     if not _ending_said:
-        say_interrupted(signum == signal.SIGTERM)
+        say_interrupted(signum)
     return 128 + signum
 
 
@@ -217,7 +217,7 @@ def raise_as_interrupted_or_again(error: Exception) -> NoReturn:
     signum = signal_received()
     if signum is None or isinstance(error, (typer.Exit, typer.Abort)):
         raise error
-    say_interrupted(signum == signal.SIGTERM)
+    say_interrupted(signum)
     raise typer.Exit(128 + signum) from None
 
 
@@ -228,7 +228,7 @@ def command(name: str, group: typer.Typer | None = None) -> Callable[[Callable],
     A user error or an OS error (read-only folder, disk full, a folder where a file should
     be) exits with code 2; running out of memory, or losing another rank of a torchrun run, with 1
     (as a worker killed for it); an
-    interrupt with 130 (SIGINT) or 143 (SIGTERM), after the library's cleanup has run. Under torchrun every rank stops with the same code, but only
+    interrupt with 130 (SIGINT), 143 (SIGTERM) or 129 (SIGHUP: a closed terminal or dropped ssh session), after the library's cleanup has run. Under torchrun every rank stops with the same code, but only
     rank 0 says it was interrupted (torchrun signals them all at once), and another rank's
     error line names its rank (it may be its own: a shard only it reads). A path that starts
     with ``~`` is taken from the home folder (:func:`home_expanded`).
@@ -258,9 +258,9 @@ def command(name: str, group: typer.Typer | None = None) -> Callable[[Callable],
                     raise_as_interrupted_or_again(error)
                 raise typer.Exit(1) from None
             except KeyboardInterrupt as interrupt:
-                terminated = isinstance(interrupt, Terminated)
-                say_interrupted(terminated)
-                raise typer.Exit(143 if terminated else 130) from None
+                signum = interrupt.signum if isinstance(interrupt, Terminated) else signal.SIGINT
+                say_interrupted(signum)
+                raise typer.Exit(128 + signum) from None
             except Exception as error:
                 raise_as_interrupted_or_again(error)
 

@@ -84,7 +84,8 @@ def _wait_until(condition, timeout: float = 30.0):
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="finds the worker processes through /proc")
-@pytest.mark.parametrize("signum, exit_code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)], ids=["SIGTERM", "SIGINT"])
+@pytest.mark.parametrize("signum, exit_code", [(signal.SIGTERM, 143), (signal.SIGINT, 130), (signal.SIGHUP, 129)],
+                         ids=["SIGTERM", "SIGINT", "SIGHUP"])
 def test_a_signal_stops_the_workers_and_leaves_nothing(tmp_path, process_tree, signum, exit_code):
     out = tmp_path / "out"
     command = [sys.executable, "-m", "sianms_cli", "synth", "--out", str(out), "--workers", "2", "--scenes", "2",
