@@ -3,12 +3,12 @@
 A multi-process command (synth, prepare) runs its workers in :func:`worker_pool`. Workers
 ignore SIGINT and SIGHUP, so a Ctrl-C in the terminal, or the terminal closing (sent to the whole
 process group), reaches the parent only; :func:`interrupt_on_signals` makes SIGTERM and SIGHUP (an
-ssh session dropped, a terminal closed) raise :class:`Terminated` (a KeyboardInterrupt) there too. Either way the exception unwinds the parent through its
-cleanup code, and leaving :func:`worker_pool` terminates and joins every worker: no
-process outlives the run and no worker writes after the parent has cleaned up. A parent
-killed outright (SIGKILL, the OOM killer) cleans nothing up; its workers notice they are
-orphaned and exit within a second. A caller
-that consumes results in a generator wraps it in ``contextlib.closing``, so an interrupt
+ssh session dropped, a terminal closed) raise :class:`Terminated` (a KeyboardInterrupt) there too.
+Either way the exception unwinds the parent through its cleanup code, and leaving
+:func:`worker_pool` terminates and joins every worker: no process outlives the run and no worker
+writes after the parent has cleaned up. A parent killed outright (SIGKILL, the OOM killer) cleans
+nothing up; its workers notice they are orphaned and exit within a second. A caller that consumes
+results in a generator wraps it in ``contextlib.closing``, so an interrupt
 between two results also closes the pool before the caller cleans up.
 """
 

@@ -227,11 +227,12 @@ def command(name: str, group: typer.Typer | None = None) -> Callable[[Callable],
 
     A user error or an OS error (read-only folder, disk full, a folder where a file should
     be) exits with code 2; running out of memory, or losing another rank of a torchrun run, with 1
-    (as a worker killed for it); an
-    interrupt with 130 (SIGINT), 143 (SIGTERM) or 129 (SIGHUP: a closed terminal or dropped ssh session), after the library's cleanup has run. Under torchrun every rank stops with the same code, but only
-    rank 0 says it was interrupted (torchrun signals them all at once), and another rank's
-    error line names its rank (it may be its own: a shard only it reads). A path that starts
-    with ``~`` is taken from the home folder (:func:`home_expanded`).
+    (as a worker killed for it); an interrupt with 130 (SIGINT), 143 (SIGTERM) or 129 (SIGHUP: a
+    closed terminal or a dropped ssh session), after the library's cleanup has run. Under torchrun
+    every rank stops with the same code, but only rank 0 says it was interrupted (torchrun signals
+    them all at once), and another rank's error line names its rank (it may be its own: a shard
+    only it reads). A path that starts with ``~`` is taken from the home folder
+    (:func:`home_expanded`).
     """
 
     def register(function: Callable) -> Callable:
