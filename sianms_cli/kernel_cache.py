@@ -21,12 +21,16 @@ Stdlib only: this module runs before numpy and numba are imported.
 
 from __future__ import annotations
 
+import importlib.abc
+import importlib.machinery
+import importlib.util
 import os
 import stat
 import sys
 import tempfile
 from pathlib import Path
-from typing import Literal, MutableMapping
+from types import ModuleType
+from typing import Any, Literal, MutableMapping
 
 PACKAGE = Path(__file__).resolve().parent
 KERNEL_PACKAGES = ("evaluation", "pipelines", "synth")
@@ -74,7 +78,10 @@ def kernel_cache_folder(environ: MutableMapping[str, str] = os.environ) -> Path 
     user = user_cache_folder(environ)
     if user is not None and is_writable_folder(user):
         return user
-    temporary = Path(tempfile.gettempdir()) / f"sianms-kernels-{os.getuid()}"
+    try:
+        temporary = Path(tempfile.gettempdir()) / f"sianms-kernels-{os.getuid()}"
+    except FileNotFoundError:  # Python found no writable temporary folder either
+        return False
     return temporary if is_private_folder(temporary) else False
 
 
@@ -96,7 +103,37 @@ def choose_kernel_cache(environ: MutableMapping[str, str] = os.environ) -> None:
 
 
 def compile_without_cache() -> None:
-    """Make ``cache=True`` a no-op: every process compiles the kernels it calls (numba is loaded here)."""
-    from numba.core.dispatcher import Dispatcher
+    """Make ``cache=True`` a no-op: every process compiles the kernels it calls.
 
-    Dispatcher.enable_caching = lambda self: None
+    numba is not imported here (it loads numpy, which must wait for the kernel settings of
+    :mod:`sianms_cli.kernels`): its dispatcher is changed as it loads (:class:`_UncachedDispatcher`),
+    or now where it is loaded already."""
+    dispatcher = sys.modules.get("numba.core.dispatcher")
+    if dispatcher is not None:
+        _never_cache(dispatcher)
+    elif not any(isinstance(finder, _UncachedDispatcher) for finder in sys.meta_path):
+        sys.meta_path.insert(0, _UncachedDispatcher())
+
+
+def _never_cache(dispatcher: ModuleType) -> None:
+    dispatcher.Dispatcher.enable_caching = lambda self: None
+
+
+class _UncachedDispatcher(importlib.abc.MetaPathFinder):
+    """Finds ``numba.core.dispatcher`` as Python would, and has :func:`_never_cache` run once it has loaded."""
+
+    def find_spec(self, name: str, path: Any, target: Any = None) -> importlib.machinery.ModuleSpec | None:
+        if name != "numba.core.dispatcher":
+            return None
+        sys.meta_path.remove(self)
+        spec = importlib.util.find_spec(name)
+        if spec is None or spec.loader is None:
+            return spec
+        load = spec.loader.exec_module
+
+        def exec_module(module: ModuleType) -> None:
+            load(module)
+            _never_cache(module)
+
+        spec.loader.exec_module = exec_module  # type: ignore[method-assign]
+        return spec

@@ -56,25 +56,31 @@ def test_a_temporary_folder_others_can_write_to_is_not_used(tmp_path):
     assert not is_private_folder(tmp_path / "a-link")
 
 
-@pytest.mark.skipif(shutil.which("unshare") is None, reason="needs unshare to mount the package read-only")
+@pytest.mark.skipif(shutil.which("unshare") is None or not Path("/mnt").is_dir(),
+                    reason="needs unshare and /mnt to mount the package and the temporary folders read-only")
 @pytest.mark.parametrize("temporary", ["writable", "read-only"])
 def test_synth_runs_with_no_writable_package_nor_home(tmp_path, temporary):
-    """In a mount namespace of its own, the checkout is read-only, HOME is a read-only filesystem, and so
-    is the temporary folder for "read-only": the kernels then compile without a cache."""
-    home = tmp_path / "home"
-    home.mkdir()
-    out = tmp_path / "data"
+    """In a mount namespace of its own the checkout is read-only and HOME a read-only filesystem; for
+    "read-only" every temporary folder Python would take is one too: the kernels compile uncached, and
+    numpy still loads after the kernel settings (the executable checks)."""
+    (tmp_path / "home").mkdir()
+    (tmp_path / "tmp").mkdir()
+    work = Path("/mnt")  # this test's folder, mounted where the read-only temporary folders do not hide it
+    hide = "".join(f" && mount -t tmpfs -o ro,size=64k tmpfs {folder}" for folder in ("/tmp", "/var/tmp")
+                   if temporary == "read-only" and Path(folder).is_dir())
     script = (f"mount --make-rprivate / && mount --bind {REPO_ROOT} {REPO_ROOT} && "
-              f"mount -o remount,bind,ro {REPO_ROOT} && mount -t tmpfs -o ro,size=64k tmpfs {home} && "
-              f"exec {sys.executable} -m sianms_cli synth --out {out} --scenes 1 --scene-seconds 1 --sensors none "
-              "--quiet")
-    environment = {key: value for key, value in os.environ.items() if key not in ("NUMBA_CACHE_DIR", "XDG_CACHE_HOME")}
-    environment.update(HOME=str(home), TMPDIR=str(home if temporary == "read-only" else tmp_path))
+              f"mount -o remount,bind,ro {REPO_ROOT} && mount --bind {tmp_path} {work} && "
+              f"mount -t tmpfs -o ro,size=64k tmpfs {work / 'home'}{hide} && cd {work / 'home'} && "
+              f"exec {Path(sys.executable).parent / 'sianms'} synth --out {work / 'data'} --scenes 1 "
+              "--scene-seconds 1 --sensors none --quiet")
+    environment = {key: value for key, value in os.environ.items()
+                   if key not in ("NUMBA_CACHE_DIR", "XDG_CACHE_HOME", "TMPDIR", "TEMP", "TMP")}
+    environment.update(HOME=str(work / "home"), TMPDIR=str(work / ("tmp" if temporary == "writable" else "home")))
     done = subprocess.run(["unshare", "-m", "sh", "-c", script], capture_output=True, text=True, env=environment,
                           timeout=600)
     if done.returncode != 0 and "mount" in done.stderr and "sianms" not in done.stderr:
         pytest.skip(f"cannot mount here: {done.stderr.strip()}")
     assert (done.returncode, done.stderr) == (0, ""), done.stderr[-2000:]
-    assert (out / "v1.0-mini" / "scene.json").is_file()
-    cached = tmp_path / f"sianms-kernels-{os.getuid()}"
+    assert (tmp_path / "data" / "v1.0-mini" / "scene.json").is_file()
+    cached = tmp_path / "tmp" / f"sianms-kernels-{os.getuid()}"
     assert any(cached.rglob("*.nbi")) if temporary == "writable" else not cached.exists()
