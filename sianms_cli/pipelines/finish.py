@@ -71,14 +71,14 @@ def _read_scene_table(path: Path) -> pa.Table:
                 raise DataFormatError(path, f"{schema.field(index).type} where eval writes {field.type}; "
                                             f"{SCENE_AGAIN}", field=field.name)
         table = pq.read_table(path, schema=BOXES_SCHEMA)
-    for name, broken, expected in _broken_rows(table):
+    for name, broken, expected in broken_rows(table):
         rows = np.flatnonzero(broken)
         if len(rows):
             raise DataFormatError(path, f"row {rows[0]}: expected {expected}; {SCENE_AGAIN}", field=name)
     return table
 
 
-def _broken_rows(table: pa.Table) -> list[tuple[str, np.ndarray, str]]:
+def broken_rows(table: pa.Table) -> list[tuple[str, np.ndarray, str]]:
     """(field, rows (N,) bool where its value breaks what the scenes stage writes, what it writes)."""
     def values(name: str) -> np.ndarray:
         return table[name].to_numpy(zero_copy_only=False)

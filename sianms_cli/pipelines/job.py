@@ -34,6 +34,8 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterator
 
+import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 
 from sianms_cli.data.cache import cache_fingerprint, checked_files, trust_checked_files, verified_shard, verify_cache
@@ -45,7 +47,7 @@ from sianms_cli.io import (atomic_file, exclusive_lock, make_folder, partial_of,
 from sianms_cli.nuscenes.fingerprint import dataset_fingerprint
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.pipelines.calibration import Calibration, check_calibration, margins_midpoint, read_calibration
-from sianms_cli.pipelines.finish import finish
+from sianms_cli.pipelines.finish import broken_rows, finish
 from sianms_cli.pipelines.inference import FPointNetPredictor
 from sianms_cli.pipelines.methods import (HYBRID, IOU_METHODS, MATCHERS, METHODS, parse_methods, parse_thresholds,
                                           split_name)
@@ -365,6 +367,21 @@ def scene_path(out: Path, name: str) -> Path:
     return out / SCENES / f"{name}.parquet"
 
 
+NETWORK_FIELDS = ("translation", "size", "yaw")  # a box's fields that Frustum PointNets estimates
+
+
+def refuse_broken_boxes(table: pa.Table, checkpoint: Path, scene: str) -> None:
+    """Refuse, before it is written, a scene's boxes table that the finish stage would refuse: its boxes come
+    from the F-PointNets checkpoint, which is named (weights beyond float32's range give infinite boxes);
+    once written, the message would blame the scene's table, and its deletion would not help."""
+    for name, broken, expected in broken_rows(table):
+        rows = np.flatnonzero(broken)
+        if name in NETWORK_FIELDS and len(rows):
+            raise DataFormatError(checkpoint, f"the network gave scene {scene} a box whose {name} is not "
+                                              f"{expected} (row {rows[0]}): the checkpoint is not usable; take "
+                                              "another one or train again")
+
+
 def write_scene(evaluator: SceneEvaluator, cache: Path, out: Path, token: str, name: str) -> str:
     """Evaluate one scene unless it is done or another run holds it: "written", "finished", "busy"."""
     lock = try_lock(out / SCENES / f"{name}.lock")
@@ -376,6 +393,7 @@ def write_scene(evaluator: SceneEvaluator, cache: Path, out: Path, token: str, n
             return "finished"
         table = evaluator.scene(verified_shard(cache, "detections", name), verified_shard(cache, "frustums", name),
                                 token)
+        refuse_broken_boxes(table, evaluator.predictor.path, name)
         with atomic_file(path) as handle:
             pq.write_table(table, handle, compression="zstd")
         return "written"

@@ -283,6 +283,7 @@ def load_checkpoint(path: str | Path, kind: str | None = None) -> Checkpoint:
     for name, value in data["model"].items():
         if not isinstance(value, torch.Tensor):
             raise DataFormatError(path, f"expected a tensor, got {type(value).__name__}", field=f"model.{name}")
+    _refuse_non_finite(path, data)
     for i, row in enumerate(data["history"]):
         if not isinstance(row, dict):
             raise DataFormatError(path, f"expected an object per epoch, got {type(row).__name__}",
@@ -295,6 +296,22 @@ def load_checkpoint(path: str | Path, kind: str | None = None) -> Checkpoint:
                                       field=f"history[{i}].{name}")
     del data["format"]
     return Checkpoint(**data)
+
+
+def _refuse_non_finite(path: Path, data: dict[str, Any]) -> None:
+    """Refuse a checkpoint whose weights (or optimizer state) hold NaN or infinity, naming the tensor: the
+    networks would turn every box into NaN, and an evaluation had blamed its own scene file for it."""
+    state = data["optimizer"].get("state") if isinstance(data["optimizer"].get("state"), dict) else {}
+    tensors = [(f"model.{name}", value) for name, value in data["model"].items()]
+    tensors += [(f"optimizer.state.{key}.{name}", value) for key, values in state.items()
+                if isinstance(values, dict) for name, value in values.items() if isinstance(value, torch.Tensor)]
+    for name, value in tensors:
+        if value.is_floating_point() or value.is_complex():
+            finite = torch.isfinite(value)
+            if not bool(finite.all()):
+                raise DataFormatError(path, f"{int((~finite).sum()):,} of its {value.numel():,} values are NaN or "
+                                            "infinite (a training that diverged, or an altered file): not a usable "
+                                            "checkpoint; take an earlier one or train again", field=name)
 
 
 _CHECKPOINT_TYPES = {"kind": str, "config": dict, "epoch": int, "model": dict, "optimizer": dict, "history": list,
