@@ -1,135 +1,138 @@
-"""Benchmark of Frustum PointNets v1 training and inference steps on this machine's CPU.
+"""Benchmark of Frustum PointNets v1 training steps on this machine's CPU, path against path.
 
-Prints frustums per second for training (forward + loss + backward + Adam step) and
-inference (eval mode, no grad) with 1 and 2 torch threads, at the given point counts, and
-the 2-thread / 1-thread ratio measured in the same run (models.md §8 measured 17 frustums/s
-at 1,024 points on 2 threads, 10 on 1; 1.7-1.8x). Then, with 2 threads, training against
-the original's formulation of the segmentation head (the global feature tiled to every
-point, then one linear map), which the model replaces by applying the global part once per
-frustum. With several ``--precisions``, each one's frustums per second against fp32's on 2
-threads, as the training runs them (:mod:`sianms_cli.training.precision`: autocast forward,
-float32 loss, loss-scaled backward in fp16). Batches are random tensors of the real shapes:
-the cache's reading costs well under 1 % of a step (one shard in memory at a time).
+A path is the kernels the arithmetic libraries run (``avx2``: what every command but the
+trainings asks for, so bytes agree across CPUs; ``native``: the CPU's own, what ``sianms
+train`` runs, :mod:`sianms_cli.kernels`) and the precision of the forward pass
+(:mod:`sianms_cli.training.precision`). Kernels are chosen when the libraries load, so every
+path is measured in a process of its own; all of them run in this one invocation, and each
+one's frustums per second is printed as a ratio against the reference path, ``avx2 fp32``
+(the trainings' default before they ran native kernels), at the same points and threads.
 
-On a GPU (``--device cuda``) the same tables have one column, the device's, and the
-thread comparison is left out.
+A step is forward + loss + backward + Adam, batch 32, on random tensors of the real shapes:
+reading the cache costs well under 1 % of a step. ``--compile`` adds ``torch.compile`` paths
+(minutes of compiling first; they need a C++ compiler). On a GPU (``--device cuda``) the
+precisions are compared on the device instead.
 
-Usage: python bench/train_fpointnet.py [--points 1024,512] [--batch 32] [--steps 5] [--precisions fp32,bf16]
-                                       [--device cpu|cuda|cuda:N]
+Usage: python bench/train_fpointnet.py [--points 256,1024] [--threads 1,2] [--steps 6]
+                                       [--paths avx2:fp32,avx2:bf16,native:fp32,native:bf16] [--compile]
+                                       [--device cuda]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import subprocess
+import sys
 import time
 
-import torch
-
-from sianms_cli.models.fpointnet import FPointNetV1
-from sianms_cli.models.fpointnet_losses import fpointnet_loss
-from sianms_cli.training.precision import MixedPrecision, float32_outputs
-
-MEAN_SIZES = torch.tensor([[4.61, 1.95, 1.72], [0.73, 0.66, 1.76], [1.68, 0.60, 1.27]])
+REFERENCE = "avx2:fp32"
+DEFAULT_PATHS = "avx2:fp32,avx2:bf16,native:fp32,native:bf16"
 
 
-def batch(size: int, points: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, dict]:
-    """Random points, one-hot vectors and targets of a batch."""
+def measure(points: int, size: int, steps: int, precision: str, compiled: bool, device_name: str) -> float:
+    """Training frustums per second over ``steps`` steps after two warm-up steps (compiling, if asked)."""
+    import torch
+
+    from sianms_cli.models.fpointnet import FPointNetV1
+    from sianms_cli.models.fpointnet_losses import fpointnet_loss
+    from sianms_cli.training.precision import MixedPrecision, float32_outputs
+
+    device = torch.device(device_name)
+    mean_sizes = torch.tensor([[4.61, 1.95, 1.72], [0.73, 0.66, 1.76], [1.68, 0.60, 1.27]])
+    torch.manual_seed(0)
+    generator = torch.Generator().manual_seed(0)
     classes = torch.randint(0, 3, (size,), generator=generator)
     targets = {"seg": torch.randint(0, 2, (size, points), generator=generator),
                "center": torch.randn(size, 3, generator=generator) + torch.tensor([0.0, 1.0, 20.0]),
                "heading": torch.rand(size, generator=generator) * 6.28 - 3.14,
-               "lwh": MEAN_SIZES[classes] * 1.05, "size_class": classes}
-    return torch.randn(size, points, 4, generator=generator), torch.eye(3)[classes], targets
-
-
-class ConcatenatedHead(FPointNetV1):
-    """The original's segmentation head: [point feature, tiled global feature] through one per-point map."""
-
-    def _seg_head_first_layer(self, point_feature: torch.Tensor, global_feature: torch.Tensor) -> torch.Tensor:
-        tiled = global_feature[:, None, :].expand(-1, point_feature.shape[1], -1)
-        return self.seg_head[0][0](torch.cat([point_feature, tiled], dim=2))
-
-
-def frustums_per_second(points: int, size: int, steps: int, train: bool, precision: str = "fp32",
-                        network: type[FPointNetV1] = FPointNetV1, device: torch.device = torch.device("cpu")) -> float:
-    """Frustums per second over ``steps`` steps after one warm-up step."""
-    torch.manual_seed(0)
-    generator = torch.Generator().manual_seed(0)
-    model = network(MEAN_SIZES).to(device)
-    optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
-    model.train(train)
-    x, one_hot, targets = batch(size, points, generator)
-    x, one_hot = x.to(device), one_hot.to(device)
+               "lwh": mean_sizes[classes] * 1.05, "size_class": classes}
     targets = {key: value.to(device) for key, value in targets.items()}
+    x = torch.randn(size, points, 4, generator=generator).to(device)
+    one_hot = torch.eye(3)[classes].to(device)
+    model = FPointNetV1(mean_sizes).to(device)
+    forward = torch.compile(model) if compiled else model
+    optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
     mixed = MixedPrecision(precision, device)
 
-    def finished() -> float:  # CUDA runs asynchronously: wait for the queued steps before reading the clock
-        if device.type == "cuda":
-            torch.cuda.synchronize(device)
-        return time.perf_counter()
-
     def step() -> None:
-        if not train:
-            with torch.no_grad(), mixed.autocast():
-                model(x, one_hot)
-            return
         with mixed.autocast():
-            outputs = model(x, one_hot)
+            outputs = forward(x, one_hot)
         losses = fpointnet_loss(float32_outputs(outputs), targets, model.mean_sizes)
         optimizer.zero_grad()
         mixed.backward_step(losses["total"], optimizer)
+        if device.type == "cuda":
+            torch.cuda.synchronize(device)
 
     step()
-    start = finished()
+    step()
+    start = time.perf_counter()
     for _ in range(steps):
         step()
-    return steps * size / (finished() - start)
+    return steps * size / (time.perf_counter() - start)
+
+
+def child(args: argparse.Namespace) -> None:
+    """One path in this process: set the kernels before torch loads, then print the rate as JSON."""
+    from sianms_cli.kernels import use_avx2_kernels
+
+    use_avx2_kernels(native_default=args.kernels == "native")
+    import torch
+
+    if args.device == "cpu":
+        torch.set_num_threads(int(args.threads))
+    rate = measure(int(args.points), args.batch, args.steps, args.precision, args.compile_path, args.device)
+    print(json.dumps({"frustums_per_second": rate, "capability": torch.backends.cpu.get_cpu_capability()}))
+
+
+def run_path(path: str, points: int, threads: int, args: argparse.Namespace) -> float:
+    kernels, precision, *compiled = path.split(":")
+    command = [sys.executable, __file__, "--child", "--kernels", kernels, "--precision", precision,
+               "--points", str(points), "--threads", str(threads), "--batch", str(args.batch),
+               "--steps", str(args.steps), "--device", args.device, *(["--compile-path"] if compiled else [])]
+    environment = {key: value for key, value in os.environ.items() if key != "SIANMS_NATIVE_KERNELS"}
+    done = subprocess.run(command, capture_output=True, text=True, env=environment, check=False)
+    if done.returncode != 0:
+        raise SystemExit(f"path {path} failed:\n{done.stderr[-2000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])["frustums_per_second"]
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--points", default="1024,512")
+    parser.add_argument("--points", default="256,1024")
+    parser.add_argument("--threads", default="1,2")
     parser.add_argument("--batch", type=int, default=32)
-    parser.add_argument("--steps", type=int, default=5)
-    parser.add_argument("--precisions", default="fp32",
-                        help="comma-separated: fp32, bf16 (AVX512-BF16 / AMX CPUs), fp16 (loss-scaled)")
-    parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
+    parser.add_argument("--steps", type=int, default=6)
+    parser.add_argument("--paths", default=DEFAULT_PATHS, help=f"comma list of kernels:precision (reference "
+                                                               f"{REFERENCE} is always measured)")
+    parser.add_argument("--compile", action="store_true", help="also native:<each precision>:compiled")
+    parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (precisions compared on the device)")
+    parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--kernels", default="avx2", help=argparse.SUPPRESS)
+    parser.add_argument("--precision", default="fp32", help=argparse.SUPPRESS)
+    parser.add_argument("--compile-path", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
-    device = torch.device(args.device)
-    on_cpu = device.type == "cpu"
-    point_counts = [int(p) for p in args.points.split(",")]
-    precisions = args.precisions.split(",")
-    print(f"F-PointNets v1, batch {args.batch}, {args.steps} timed steps, "
-          f"{'CPU' if on_cpu else torch.cuda.get_device_name(device)}")
-    print("precision | points | mode      | " + ("1 thread | 2 threads | ratio" if on_cpu else "frustums/s"))
-    fastest = {}  # (precision, points, mode) -> frustums/s on 2 threads or the GPU
-    for precision in precisions:
-        for points in point_counts:
-            for train in (True, False):
-                rates = []
-                for threads in ((1, 2) if on_cpu else (None,)):
-                    if threads is not None:
-                        torch.set_num_threads(threads)
-                    rates.append(frustums_per_second(points, args.batch, args.steps, train, precision, device=device))
-                mode = "train" if train else "inference"
-                fastest[precision, points, mode] = rates[-1]
-                columns = (f"{rates[0]:8.1f} | {rates[1]:9.1f} | {rates[1] / rates[0]:.2f}" if on_cpu
-                           else f"{rates[0]:10.1f}")
-                print(f"{precision:9s} | {points:6d} | {mode:9s} | {columns}")
-    if len(precisions) > 1 and "fp32" in precisions:
-        print(f"{'2 threads' if on_cpu else args.device}, each precision / fp32")
-        for precision in (name for name in precisions if name != "fp32"):
-            for key in (key for key in fastest if key[0] == precision):
-                print(f"{precision:9s} | {key[1]:6d} | {key[2]:9s} | {fastest[key] / fastest[('fp32', *key[1:])]:.2f}")
-    print(f"training in {precisions[0]}{', 2 threads' if on_cpu else ''}: segmentation head as the model applies "
-          "it / as the original concatenates")
-    print("points | per frustum | concatenated | ratio")
-    if on_cpu:
-        torch.set_num_threads(2)
-    for points in point_counts:
-        ours = frustums_per_second(points, args.batch, args.steps, True, precisions[0], device=device)
-        original = frustums_per_second(points, args.batch, args.steps, True, precisions[0], ConcatenatedHead, device)
-        print(f"{points:6d} | {ours:11.1f} | {original:12.1f} | {ours / original:.2f}")
+    if args.child:
+        child(args)
+        return
+    if args.device != "cpu":
+        args.points = args.points.split(",")[0]
+        args.threads = "1"
+    paths = [REFERENCE] + [path for path in args.paths.split(",") if path != REFERENCE]
+    if args.compile:
+        paths += [f"native:{precision}:compiled" for precision in ("fp32", "bf16")]
+    with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as cpuinfo:
+        model = next((line.split(":", 1)[1].strip() for line in cpuinfo if line.startswith("model name")), "unknown")
+    print(f"F-PointNets v1 training steps, batch {args.batch}, {args.steps} timed steps, {model}, {args.device}")
+    print("path                   | points | threads | frustums/s | / " + REFERENCE)
+    for points in (int(value) for value in args.points.split(",")):
+        for threads in (int(value) for value in args.threads.split(",")):
+            reference = None
+            for path in paths:
+                rate = run_path(path, points, threads, args)
+                reference = reference or rate
+                print(f"{path:22s} | {points:6d} | {threads:7d} | {rate:10.1f} | {rate / reference:.2f}", flush=True)
 
 
 if __name__ == "__main__":

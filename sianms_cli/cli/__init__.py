@@ -7,7 +7,7 @@ from typer.main import get_command
 
 from sianms_cli.cli._app import app, exit_code_after_signals, say_error
 from sianms_cli.processes import exit_on_signals, interrupt_on_signals, signal_received
-from sianms_cli.cli import demo, evaluate, info, metrics, prepare, report, synth, train  # noqa: F401  (importing registers the subcommands)
+from sianms_cli.cli import demo, evaluate, info, metrics, prepare, report, synth, train, zoo  # noqa: F401  (importing registers the subcommands)
 
 
 def main() -> None:

@@ -126,6 +126,7 @@ class FPointNetConfig:
     box_weight: float = 1.0
     corner_weight: float = 10.0
     num_object_points: int = 512
+    init: str | None = None  # weights to start from: a fpointnet run folder, checkpoint or zoo:NAME (fine-tuning)
     multiview: bool = False  # also train on the union frustums of the cache's camera pairs
     dataroot: str | None = None  # the cache's nuScenes dataroot (LiDAR sweeps); required with multiview
     max_distance: float = 50.0  # metres: multi-frustum circle radius, nuScenes' car detection range
@@ -368,6 +369,27 @@ def _figures(prefix: str, rows: dict[str, np.ndarray], keep: np.ndarray) -> dict
     return figures
 
 
+def load_initial_weights(model: FPointNetV1, config: FPointNetConfig) -> np.ndarray:
+    """Start ``model`` from the weights of ``config.init`` (fine-tuning) and return their size
+    clusters (l, w, h), which the run keeps: its size residuals are relative to them. A checkpoint
+    of other classes or another shape of network is refused, naming it."""
+    from sianms_cli.training.run import checkpoint_file, load_checkpoint
+
+    path = checkpoint_file(config.init)
+    initial = load_checkpoint(path, "fpointnet")
+    classes = initial.extra.get("classes")
+    if classes != list(config.classes):
+        raise DataFormatError(path, f"trained on classes {classes!r}, this run trains {list(config.classes)}: "
+                              "--classes must be the same to fine-tune", field="extra.classes")
+    try:
+        model.load_state_dict({key: value.float() for key, value in initial.model.items()})
+    except RuntimeError as error:  # another layer shape or set of layers: say the first difference
+        raise DataFormatError(path, "not this run's network (another --intensity or architecture): "
+                              f"{str(error).splitlines()[1].strip() if len(str(error).splitlines()) > 1 else error}",
+                              field="model") from None
+    return model.mean_sizes.cpu().numpy().astype(np.float64)
+
+
 def build_shared_unions(config: FPointNetConfig, folder: Path, settings: MultiviewSettings, progress: Progress,
                         rank: int, world: int) -> dict[str, int]:
     """The run's union frustums (:func:`~sianms_cli.data.multiview.build_union_shards`): rank 0
@@ -417,6 +439,8 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
         optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
         history: list[dict[str, Any]] = []
         start, samples = 0, 0
+        if config.init is not None and folder.resumed is None:
+            mean_sizes = load_initial_weights(model, config)
         if folder.resumed is not None:
             folder.restore(model, optimizer)
             start, history = folder.resumed.epoch, list(folder.resumed.history)

@@ -65,6 +65,7 @@ import torch
 from sianms_cli.data.cache import cache_fingerprint, verify_cache
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
 from sianms_cli.json_stream import is_number
+from sianms_cli import zoo
 from sianms_cli.io import (FolderBusyError, exclusive_lock, first_foreign_file, make_folder, partial_of, read_json,
                           write_bytes, write_json)
 
@@ -240,7 +241,10 @@ def save_checkpoint(path: str | Path, checkpoint: Checkpoint) -> Path:
 
 
 def checkpoint_file(run: str | Path) -> Path:
-    """The checkpoint of ``run``: a run folder's ``checkpoint.pt``, or ``run`` itself when it names a file."""
+    """The checkpoint of ``run``: a run folder's ``checkpoint.pt``, ``run`` itself when it names a
+    file, or a zoo entry's checked file for ``zoo:NAME`` (:mod:`sianms_cli.zoo`)."""
+    if zoo.is_zoo_name(run):
+        return zoo.checkpoint_path(run)
     path = Path(run)
     return path / CHECKPOINT if path.is_dir() else path
 
