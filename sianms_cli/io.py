@@ -21,6 +21,7 @@ import os
 import re
 import secrets
 import shutil
+import stat
 from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import IO, Any, Callable, Iterator, TypeVar
@@ -30,6 +31,9 @@ import orjson
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
 
 PARTIAL_SUFFIX = ".partial"
+RECORD_MAX_BYTES = 64 * 2**20
+"""The most a JSON record sianms writes for people and for its own use can need (eval.json, table.json,
+metrics, report.json, a metrics config: kilobytes to a few megabytes): a larger one is not the file meant."""
 JSON_MAX_DEPTH = 1024  # orjson refuses deeper documents; the json module's limit moves with Python's version
 _BRACKET_OR_STRING = re.compile(r'"(?:[^"\\]|\\.)*"|[\[\]{}]')
 T = TypeVar("T")
@@ -280,19 +284,71 @@ def check_writable_output(path: str | Path, *, overwrite: bool) -> Path:
     return path
 
 
-def read_json(path: str | Path) -> Any:
-    """The JSON document at ``path``.
+def _kind_of(mode: int) -> str:
+    """What a file that is not a regular file is, in words."""
+    for test, kind in ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a pipe (FIFO)"), (stat.S_ISCHR, "a device"),
+                       (stat.S_ISBLK, "a device"), (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return kind
+    return "not a regular file"
+
+
+@contextmanager
+def regular_file(path: str | Path, max_bytes: int | None = None) -> Iterator[IO[bytes]]:
+    """``path`` open for reading once it is checked to be a regular file of at most ``max_bytes``.
+
+    An input that is a folder, a pipe, a device or a socket (``/dev/zero`` read until memory runs out,
+    a FIFO no one writes to waits for ever) raises DataFormatError naming it, and so does one larger
+    than its format has any use for. The file is opened without blocking (a FIFO's open would wait for
+    a writer) and checked on the open descriptor, so what is read is what was checked.
+    """
+    path = Path(path)
+    try:
+        descriptor = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    except FileNotFoundError:
+        raise DataFormatError(path, "file not found") from None
+    except IsADirectoryError:
+        raise DataFormatError(path, "is a folder, not a file") from None
+    except OSError as error:
+        raise DataFormatError(path, f"cannot read: {error.strerror or error}") from None
+    try:
+        status = os.fstat(descriptor)
+        if not stat.S_ISREG(status.st_mode):
+            raise DataFormatError(path, f"{_kind_of(status.st_mode)}, not a regular file: give a file")
+        if max_bytes is not None and status.st_size > max_bytes:
+            raise DataFormatError(path, f"{status.st_size:,} bytes, more than the {max_bytes:,} such a file can "
+                                        "need: not the file meant?")
+        os.set_blocking(descriptor, True)
+        handle = os.fdopen(descriptor, "rb")
+    except BaseException:
+        os.close(descriptor)
+        raise
+    with handle:
+        yield handle
+
+
+def check_regular_file(path: str | Path, max_bytes: int | None = None) -> Path:
+    """Refuse an input that is not a regular file of at most ``max_bytes`` (:func:`regular_file`), for
+    a library that opens the file itself."""
+    with regular_file(path, max_bytes):
+        return Path(path)
+
+
+def read_json(path: str | Path, max_bytes: int | None = None) -> Any:
+    """The JSON document at ``path``, a regular file of at most ``max_bytes`` (:func:`regular_file`).
 
     A missing or unreadable file, invalid UTF-8 or invalid JSON raises one DataFormatError
     naming the file (with the line and column of a syntax error).
     """
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise DataFormatError(path, "file not found") from None
-    except OSError as error:
-        raise DataFormatError(path, f"cannot read: {error.strerror or error}") from None
+    with regular_file(path, max_bytes) as handle:
+        try:
+            # a bounded read: a file that grew since it was checked is refused, not read on
+            data = handle.read() if max_bytes is None else handle.read(max_bytes + 1)
+        except OSError as error:
+            raise DataFormatError(path, f"cannot read: {error.strerror or error}") from None
+    if max_bytes is not None and len(data) > max_bytes:
+        raise DataFormatError(path, f"more than the {max_bytes:,} bytes such a file can need: not the file meant?")
     return decode_json(path, data)
 
 

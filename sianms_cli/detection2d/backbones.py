@@ -27,6 +27,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from sianms_cli.errors import DataFormatError, SianmsError
+from sianms_cli.io import check_regular_file
 
 BACKBONES = ("tiny", "resnet50-c4")
 STRIDE = 16
@@ -173,8 +174,9 @@ class ResNet50C4(nn.Module):
         DataFormatError naming the file and the first offending key.
         """
         path = Path(path)
-        if not path.is_file():
+        if not path.exists():
             raise DataFormatError(path, "weights file not found")
+        check_regular_file(path)  # a FIFO or a device would be read until memory runs out
         try:
             state = torch.load(path, map_location="cpu", weights_only=True)
         except Exception as error:  # torch raises many types for bad files

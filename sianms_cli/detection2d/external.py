@@ -24,7 +24,7 @@ import pyarrow.parquet as pq
 
 from sianms_cli.detection2d.detections import Detections2D, GroundTruth2D
 from sianms_cli.errors import DataFormatError
-from sianms_cli.io import read_json
+from sianms_cli.io import check_regular_file, read_json
 from sianms_cli.json_stream import fits_float, is_number
 from sianms_cli.nuscenes.classes import DETECTION_CLASSES
 from sianms_cli.nuscenes.loader import NuScenesDB
@@ -94,8 +94,9 @@ def _reject(path: Path, tokens: np.ndarray, bad: np.ndarray, field: str, message
 
 
 def _read_columns(path: Path) -> dict[str, np.ndarray]:
-    if not path.is_file():
+    if not path.exists():
         raise DataFormatError(path, "detections file not found")
+    check_regular_file(path)  # a FIFO or a device would be read until memory runs out
     if path.suffix.lower() == ".parquet":
         try:
             table = pq.read_table(path)

@@ -28,7 +28,7 @@ import numpy as np
 from sianms_cli.errors import DataFormatError, SianmsError
 from sianms_cli.evaluation.boxes import DETECTION_NAMES, LABEL
 from sianms_cli.nuscenes.classes import PAPER_CLASSES
-from sianms_cli.io import expand_home, read_json
+from sianms_cli.io import RECORD_MAX_BYTES, expand_home, read_json
 from sianms_cli.json_stream import is_finite_number, is_number, json_kind
 
 DETECTION_CVPR_2019: dict[str, Any] = {
@@ -198,7 +198,7 @@ def load_config(spec: str | Path | DetectionConfig = "detection_cvpr_2019") -> D
         raise SianmsError(
             f"config '{text}' is neither a preset ({', '.join(PRESETS)}) nor an existing JSON file"
         )
-    return DetectionConfig.from_dict(read_json(path), source=path, name=str(path))
+    return DetectionConfig.from_dict(read_json(path, RECORD_MAX_BYTES), source=path, name=str(path))
 
 
 def _failer(source: str | Path):

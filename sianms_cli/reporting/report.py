@@ -33,7 +33,8 @@ from types import MappingProxyType
 from typing import Any, Mapping
 
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
-from sianms_cli.io import build_folder, first_foreign_file, is_inside_working_folder, read_json, real_path, write_text
+from sianms_cli.io import (RECORD_MAX_BYTES, build_folder, first_foreign_file, is_inside_working_folder, read_json,
+                           real_path, write_text)
 from sianms_cli.json_stream import is_finite_number
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.reporting.eval_table import (
@@ -186,7 +187,7 @@ def read_evaluation(folder: str | Path) -> dict[str, Any]:
     marker_path = folder / "eval.json"
     if not folder.is_dir():
         raise DataFormatError(folder, "not a folder; EVAL is a `sianms eval` output folder")
-    marker = _object(read_json(marker_path), marker_path, "")
+    marker = _object(read_json(marker_path, RECORD_MAX_BYTES), marker_path, "")
     if marker.get("kind") != EVAL_KIND:
         raise DataFormatError(marker_path, f"not a sianms evaluation: expected '{EVAL_KIND}', got "
                                            f"{marker.get('kind')!r}", field="kind")
@@ -197,9 +198,10 @@ def read_evaluation(folder: str | Path) -> dict[str, Any]:
                                            "finish it with `sianms eval`", field="complete")
     config = _check_config(_object(marker.get("config"), marker_path, "config"), marker_path, FINGERPRINT_FIELDS)
     table_path = folder / "table.json"
-    table = _check_table(read_json(table_path), table_path)
+    table = _check_table(read_json(table_path, RECORD_MAX_BYTES), table_path)
     metrics_path = folder / f"metrics_{table['methods'][0]}.json"
-    metrics_cfg = _object(_object(read_json(metrics_path), metrics_path, "").get("cfg"), metrics_path, "cfg")
+    metrics_cfg = _object(_object(read_json(metrics_path, RECORD_MAX_BYTES), metrics_path, "").get("cfg"),
+                          metrics_path, "cfg")
     for name in ("dist_th_tp", "min_recall"):  # the curves are drawn at these
         if not is_finite_number(metrics_cfg.get(name)):
             raise DataFormatError(metrics_path, "must be a number", field=f"cfg.{name}")
@@ -218,7 +220,7 @@ def read_baseline(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     if path.is_dir():
         return read_evaluation(path)
-    content = _object(read_json(path), path, "")
+    content = _object(read_json(path, RECORD_MAX_BYTES), path, "")
     if content.get("schema") != SCHEMA:
         raise DataFormatError(path, f"not a sianms report: expected '{SCHEMA}', got {content.get('schema')!r}",
                               field="schema")

@@ -35,7 +35,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from sianms_cli.errors import DataFormatError, SianmsError
-from sianms_cli.io import build_folder, read_json
+from sianms_cli.io import RECORD_MAX_BYTES, build_folder, read_json
 from sianms_cli.json_stream import is_finite_number
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.reporting.eval_table import (
@@ -119,7 +119,7 @@ def run_thresholds(source: str) -> dict[str, Any] | None:
     path = Path(source) / "table.json"
     if not Path(source).is_dir():
         return None
-    value = read_json(path).get("thresholds")
+    value = read_json(path, RECORD_MAX_BYTES).get("thresholds")
     if value is None:
         return None
     dis_thr = value.get("dis_thr") if isinstance(value, dict) else None
@@ -147,7 +147,7 @@ def own_split_choices(path: Path) -> dict[str, Any] | None:
     {dis_thr, nms: {family: method}}; None where the evaluation has no such file."""
     if not path.is_file():
         return None
-    record = read_json(path)
+    record = read_json(path, RECORD_MAX_BYTES)
     dis_thr = record.get("dis_thr") if isinstance(record, dict) else None
     if not (isinstance(dis_thr, dict) and _number_or_none(dis_thr.get("value"))):
         raise DataFormatError(path, "must hold a value, a number or null", field="dis_thr")

@@ -66,8 +66,8 @@ from sianms_cli.data.cache import cache_fingerprint, verify_cache
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
 from sianms_cli.json_stream import is_number
 from sianms_cli import zoo
-from sianms_cli.io import (FolderBusyError, exclusive_lock, first_foreign_file, make_folder, partial_of, read_json,
-                          write_bytes, write_json)
+from sianms_cli.io import (FolderBusyError, check_regular_file, exclusive_lock, first_foreign_file, make_folder,
+                          partial_of, read_json, write_bytes, write_json)
 
 CHECKPOINT = "checkpoint.pt"
 CONFIG = "config.json"
@@ -258,8 +258,7 @@ def load_checkpoint(path: str | Path, kind: str | None = None) -> Checkpoint:
     path = Path(path)
     if path.is_dir():
         raise DataFormatError(path, "is a folder, not a checkpoint file")
-    if not path.is_file():
-        raise DataFormatError(path, "file not found")
+    check_regular_file(path)  # "file not found", or a FIFO or a device, refused before torch reads it
     try:
         with warnings.catch_warnings():  # torch warns of a foreign pickle protocol before refusing it: say it once
             warnings.simplefilter("ignore", UserWarning)
