@@ -46,6 +46,20 @@ def quote(value: object, limit: int = QUOTE_LIMIT) -> str:
     return f"'{text[:limit]}...' ({len(text):,} characters in all)"
 
 
+LINE_LIMIT = 2_000
+"""The most characters of an error line: past it, the middle is left out (:func:`bounded_line`)."""
+
+
+def bounded_line(line: str, limit: int = LINE_LIMIT) -> str:
+    """``line`` whole when at most ``limit`` characters long, else its start (the file, record and field) and its
+    end (what to do) with the middle left out and counted: a value no quoting bounded (a library's message
+    that echoes its input) still makes a line that a terminal and a log hold."""
+    if len(line) <= limit:
+        return line
+    head, tail = limit // 2, limit // 4
+    return f"{line[:head]}... ({len(line) - head - tail:,} characters left out) ...{line[-tail:]}"
+
+
 class DataFormatError(SianmsError):
     """A file, or one record and field in it, does not follow its format.
 

@@ -12,7 +12,7 @@ from typing import Callable, NoReturn
 import typer
 
 from sianms_cli import __version__
-from sianms_cli.errors import SianmsError, check_per_cpu_count, shorten
+from sianms_cli.errors import SianmsError, bounded_line, check_per_cpu_count, shorten
 from sianms_cli.io import describe_os_error, expand_home
 from sianms_cli.processes import Terminated, signal_name, signal_received
 
@@ -127,9 +127,11 @@ def say_interrupted(signum: int) -> None:
 
 def say_error(line: str) -> None:
     """A failed command's one ``error:`` line, on stderr: a character that does not print (a newline
-    in a file name, an undecodable byte) is written as its escape, so the line stays one line."""
-    typer.echo("".join(ch if ch.isprintable() else ch.encode("unicode_escape").decode("ascii") for ch in line),
-               err=True)
+    in a file name, an undecodable byte) is written as its escape, so the line stays one line, and a
+    line longer than :data:`~sianms_cli.errors.LINE_LIMIT` loses its middle
+    (:func:`~sianms_cli.errors.bounded_line`)."""
+    typer.echo(bounded_line("".join(ch if ch.isprintable() else ch.encode("unicode_escape").decode("ascii")
+                                    for ch in line)), err=True)
     _ending_said.append("error")
 
 

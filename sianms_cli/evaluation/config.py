@@ -25,7 +25,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from sianms_cli.errors import DataFormatError, SianmsError
+from sianms_cli.errors import DataFormatError, SianmsError, quote
 from sianms_cli.evaluation.boxes import DETECTION_NAMES, LABEL
 from sianms_cli.nuscenes.classes import PAPER_CLASSES
 from sianms_cli.io import RECORD_MAX_BYTES, expand_home, read_json
@@ -140,33 +140,33 @@ class DetectionConfig:
                 fail(f"class_range.{cls_name}",
                      f"unknown detection class; known: {', '.join(DETECTION_NAMES)}")
             if not is_finite_number(value) or value <= 0:
-                fail(f"class_range.{cls_name}", f"must be a positive number of metres, got {value!r}")
+                fail(f"class_range.{cls_name}", f"must be a positive number of metres, got {quote(value)}")
 
         if merged["dist_fcn"] != CENTER_DISTANCE:
-            fail("dist_fcn", f"only '{CENTER_DISTANCE}' is supported, got {merged['dist_fcn']!r}")
+            fail("dist_fcn", f"only '{CENTER_DISTANCE}' is supported, got {quote(merged['dist_fcn'])}")
 
         dist_ths = merged["dist_ths"]
         if (not isinstance(dist_ths, list) or not dist_ths
                 or not all(is_finite_number(t) and t > 0 for t in dist_ths)):
-            fail("dist_ths", f"must be a non-empty list of positive numbers of metres, got {dist_ths!r}")
+            fail("dist_ths", f"must be a non-empty list of positive numbers of metres, got {quote(dist_ths)}")
         if len(set(dist_ths)) != len(dist_ths):
-            fail("dist_ths", f"thresholds must be distinct, got {dist_ths!r}")
+            fail("dist_ths", f"thresholds must be distinct, got {quote(dist_ths)}")
         if len(dist_ths) > MAX_DIST_THS:
             fail("dist_ths", f"at most {MAX_DIST_THS} thresholds (the devkit's: 4), got {len(dist_ths):,}")
         if not is_number(merged["dist_th_tp"]) or merged["dist_th_tp"] not in dist_ths:
-            fail("dist_th_tp", f"must be one of dist_ths {dist_ths!r}, got {merged['dist_th_tp']!r}")
+            fail("dist_th_tp", f"must be one of dist_ths {quote(dist_ths)}, got {quote(merged['dist_th_tp'])}")
         min_recall, min_precision = merged["min_recall"], merged["min_precision"]
         if not is_finite_number(min_recall) or not 0 <= min_recall <= 1 or round(100 * min_recall) > 99:
             # AP averages the precision at the 1 %-recall points above it: past 0.99 none is left
-            fail("min_recall", f"must be a number in [0, 0.99], got {min_recall!r}")
+            fail("min_recall", f"must be a number in [0, 0.99], got {quote(min_recall)}")
         if not is_number(min_precision) or not 0 <= min_precision < 1:
-            fail("min_precision", f"must be a number in [0, 1), got {min_precision!r}")
+            fail("min_precision", f"must be a number in [0, 1), got {quote(min_precision)}")
         max_boxes = merged["max_boxes_per_sample"]
         if not isinstance(max_boxes, int) or isinstance(max_boxes, bool) or max_boxes < 1:
-            fail("max_boxes_per_sample", f"must be a positive integer, got {max_boxes!r}")
+            fail("max_boxes_per_sample", f"must be a positive integer, got {quote(max_boxes)}")
         weight = merged["mean_ap_weight"]
         if not is_finite_number(weight) or weight < 0:
-            fail("mean_ap_weight", f"must be a non-negative number, got {weight!r}")
+            fail("mean_ap_weight", f"must be a non-negative number, got {quote(weight)}")
 
         return cls(
             class_range=dict(class_range),

@@ -32,7 +32,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from sianms_cli.errors import DataFormatError
+from sianms_cli.errors import DataFormatError, quote
 from sianms_cli.evaluation.boxes import (
     ATTRIBUTE,
     ATTRIBUTE_NAMES,
@@ -322,7 +322,7 @@ def _check_meta(path: Path, meta: Any) -> None:
         raise DataFormatError(path, f"must be an object, got {json_kind(meta)}", field="meta")
     for flag in META_FLAGS:
         if flag in meta and not isinstance(meta[flag], bool):
-            raise DataFormatError(path, f"must be true or false, got {meta[flag]!r}", field=f"meta.{flag}")
+            raise DataFormatError(path, f"must be true or false, got {quote(meta[flag])}", field=f"meta.{flag}")
     field = _non_finite_field(meta, "meta")
     if field is not None:  # it is copied into the report, which strict JSON cannot hold it in
         raise DataFormatError(path, "not a finite number (NaN and Infinity are not JSON)", field=field)
@@ -458,21 +458,21 @@ def _box_problem(box: Any, token: str) -> tuple[str, str] | None:
         if key not in box:
             return key, "missing"
     if box["sample_token"] != token:
-        return "sample_token", f"is {box['sample_token']!r}, not the sample it is listed under"
+        return "sample_token", f"is {quote(box['sample_token'])}, not the sample it is listed under"
     for name, length in _VECTORS.items():
         value = box[name]
         if (not isinstance(value, list) or len(value) != length
                 or not all(is_number(v) for v in value) or not fits_float(value)):
-            return name, f"must be a list of {length} numbers, got {value!r}"
+            return name, f"must be a list of {length} numbers, got {quote(value)}"
     score = box["detection_score"]
     if not is_number(score) or not fits_float([score]):
-        return "detection_score", f"must be a number, got {score!r}"
+        return "detection_score", f"must be a number, got {quote(score)}"
     name = box["detection_name"]
     if not isinstance(name, str) or name not in LABEL:
-        return "detection_name", f"unknown class {name!r}; classes: {', '.join(DETECTION_NAMES)}"
+        return "detection_name", f"unknown class {quote(name)}; classes: {', '.join(DETECTION_NAMES)}"
     attribute = box["attribute_name"]
     if not isinstance(attribute, str) or attribute not in _ATTRIBUTE_CODES:
-        return "attribute_name", (f"unknown attribute {attribute!r}; attributes: "
+        return "attribute_name", (f"unknown attribute {quote(attribute)}; attributes: "
                                   f"{', '.join(ATTRIBUTE_NAMES)} or \"\"")
     return None
 
