@@ -24,7 +24,7 @@ import shutil
 import stat
 from contextlib import contextmanager, suppress
 from pathlib import Path
-from typing import IO, Any, Callable, Iterator, TypeVar
+from typing import IO, Any, Callable, Iterator, Literal, TypeVar
 
 import orjson
 
@@ -167,12 +167,18 @@ class AtomicFile:
             _OPEN_TEMPORARIES.discard(self.temporary)
             raise
 
-    def commit(self) -> Path:
-        """Close and rename into place; on failure (a full disk) the temporary file is deleted."""
+    def commit(self, *, replace: bool = True) -> Path:
+        """Close and rename into place; on failure (a full disk) the temporary file is deleted. Without
+        ``replace``, a file that is at ``path`` by now (made since it was checked) is kept and this one
+        dropped: :class:`DestinationChangedError`."""
         try:
             with os_errors_as_output_errors(self.path):
                 self.stream.close()
-                os.replace(self.temporary, self.path)
+                if not replace:
+                    if not _move_unless_there(self.temporary, self.path):
+                        raise _changed(self.path)
+                else:
+                    os.replace(self.temporary, self.path)
         except BaseException:
             self.discard()
             raise
@@ -241,26 +247,31 @@ def write_files_together(contents: dict[Path, str | bytes], *, overwrite: bool =
     """Write each ``{path: content}`` (a text as UTF-8) under its temporary name, then rename them
     all into place.
 
-    A failure (a full disk, a file where a folder must be) leaves none of the paths written and
-    none replaced: the temporary files are removed, a file already renamed when a later rename
-    fails is deleted, and the file it replaced, renamed aside first, is put back. Refuses a
-    folder, and an existing file unless ``overwrite``.
+    A file that was not there when checked, or another than was, by the time of the rename (another run's,
+    a user's) is kept, and none is written (:class:`DestinationChangedError`). A failure (a full disk, a
+    file where a folder must be) leaves none of the paths written and none replaced: the temporary files
+    are removed, a file already renamed when a later rename fails is deleted, and the file it replaced,
+    renamed aside first, is put back. Refuses a folder, and an existing file unless ``overwrite``.
     """
     files: list[AtomicFile] = []
     committed: list[Path] = []
     set_aside: dict[Path, Path] = {}  # destination: its earlier file, under a temporary name
+    seen: dict[Path, Snapshot | None] = {}  # destination: what was there when it was checked
     try:
         for path, content in contents.items():
             files.append(AtomicFile(check_writable_output(path, overwrite=overwrite)))
+            seen[files[-1].path] = snapshot(path)
             with os_errors_as_output_errors(path):
                 files[-1].stream.write(content.encode("utf-8") if isinstance(content, str) else content)
                 files[-1].stream.flush()  # a full disk fails here, before anything is renamed
         for file in files:
-            if file.path.exists():
+            if seen[file.path] is not None:
                 set_aside[file.path] = partial_name(file.path)
                 with os_errors_as_output_errors(file.path):
                     os.replace(file.path, set_aside[file.path])
-            committed.append(file.commit())
+                if snapshot(set_aside[file.path]) != seen[file.path]:  # replaced since: put back as it is
+                    raise _changed(file.path)
+            committed.append(file.commit(replace=False))
     except BaseException:
         for file in files:
             file.discard()
@@ -420,18 +431,23 @@ def staging_folder(destination: str | Path) -> Path:
     return staging
 
 
-def build_folder(destination: str | Path, build: Callable[[Path], T]) -> tuple[Path, T]:
+def build_folder(destination: str | Path, build: Callable[[Path], T],
+                 seen: Snapshot | None | Literal["now"] = "now") -> tuple[Path, T]:
     """Build the folder ``destination`` atomically: ``build`` fills a staging folder beside it
-    (:func:`staging_folder`), which then replaces it (:func:`publish_folder`); on a failure or
-    an interrupt the staging folder is removed and ``destination`` is left as it was.
+    (:func:`staging_folder`), which then replaces it (:func:`publish`); on a failure or an interrupt
+    the staging folder is removed and ``destination`` is left as it was.
 
+    ``seen`` is what the command saw at ``destination`` when it checked it at its start
+    (:func:`snapshot`; None: nothing); publishing refuses a destination that has changed since.
     Returns the published folder and what ``build`` returned. The caller has checked that
     ``destination`` may be replaced (``build`` may check again before it returns)."""
+    if seen == "now":
+        seen = snapshot(destination)
     staging = staging_folder(destination)
     try:
         with errors_name_files_under(Path(os.path.abspath(destination)), staging):
             built = build(staging)
-        return publish_folder(staging, destination), built
+        return publish(staging, destination, seen), built
     except BaseException:
         remove_folder(staging)
         raise
@@ -456,32 +472,143 @@ def errors_name_files_under(out: Path, staging: Path) -> Iterator[None]:
         raise OutputError(f"cannot write {describe_os_error(error, where)}") from None
 
 
-def publish_folder(staging: Path, destination: str | Path) -> Path:
-    """Move a finished ``staging`` folder to ``destination``, replacing what is there.
+Snapshot = frozenset
+"""What was at a path (:func:`snapshot`): a frozenset of (relative path, kind, inode, size, mtime) entries."""
 
-    The caller has checked that ``destination`` may be replaced. The old folder is first
-    renamed aside (one atomic step each way), then deleted, even when an interrupt lands during
-    the deletion (a hidden copy of a whole dataset had been left behind).
+
+def snapshot(path: str | Path) -> Snapshot | None:
+    """Every entry at and under ``path`` as (path relative to it, kind, inode, size, modification time), links
+    not followed; None when nothing is there. Two snapshots differ when anything was added, removed,
+    replaced or written to in between, whatever its name."""
+    path = Path(os.path.abspath(path))
+    if not os.path.lexists(path):
+        return None
+    status = path.lstat()
+    if not stat.S_ISDIR(status.st_mode):
+        return frozenset({(".", stat.S_IFMT(status.st_mode), status.st_ino, status.st_size, status.st_mtime_ns)})
+    entries = set()
+    pending = [(path, "")]
+    while pending:
+        folder, prefix = pending.pop()
+        entries.add((prefix or ".", stat.S_IFDIR, folder.lstat().st_ino, 0, 0))
+        with os.scandir(folder) as listing:
+            for entry in listing:
+                name = f"{prefix}/{entry.name}" if prefix else entry.name
+                if entry.is_dir(follow_symlinks=False):
+                    pending.append((Path(entry.path), name))
+                else:
+                    info = entry.stat(follow_symlinks=False)
+                    entries.add((name, stat.S_IFMT(info.st_mode), info.st_ino, info.st_size, info.st_mtime_ns))
+    return frozenset(entries)
+
+
+class DestinationChangedError(OutputExistsError):
+    """The destination of a publish changed while the command worked: nothing of it was touched."""
+
+
+def _changed(destination: Path) -> DestinationChangedError:
+    return DestinationChangedError(
+        f"{destination} changed while this run worked (another run, or someone, wrote there): it is left as it is "
+        "and this run's output was discarded; check what is there, then rerun or choose another --out")
+
+
+RENAME_NOREPLACE, RENAME_EXCHANGE = 1, 2  # renameat2(2)'s flags (Linux)
+_AT_FDCWD = -100
+
+
+def _renameat2(source: Path, target: Path, flags: int) -> bool:
+    """``renameat2(source, target, flags)``: True when done; False where the C library or the filesystem
+    lacks it (the caller falls back); an OSError for anything else (EEXIST: the target is there)."""
+    import ctypes
+
+    try:
+        function = ctypes.CDLL(None, use_errno=True).renameat2
+    except (AttributeError, OSError):
+        return False
+    function.argtypes = (ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint)
+    if function(_AT_FDCWD, os.fsencode(source), _AT_FDCWD, os.fsencode(target), flags) == 0:
+        return True
+    code = ctypes.get_errno()
+    if code in (errno.EINVAL, errno.ENOSYS, errno.ENOTSUP):
+        return False
+    raise OSError(code, os.strerror(code), str(target))
+
+
+def publish(staging: Path, destination: str | Path, seen: Snapshot | None) -> Path:
+    """Move a finished ``staging`` folder to ``destination``, provided ``destination`` still holds exactly what
+    the command saw at its start (``seen``, :func:`snapshot`; None: nothing).
+
+    Checked in the same step as the move where the OS allows (Linux's renameat2): a destination that was
+    absent is taken only if it still is (RENAME_NOREPLACE); one that was there is exchanged with the staging
+    folder in one step (RENAME_EXCHANGE) and, when what comes out is not what was seen, exchanged back.
+    So a folder a user made meanwhile, or another run's output, is never deleted: two runs racing for one
+    ``--out`` end with one published and one :class:`DestinationChangedError`, nothing lost. Elsewhere
+    the destination is compared just before the moves. A destination seen but gone since is taken as
+    absent (nothing of anyone's is there). The old folder is deleted last (:func:`_delete`).
     """
     destination = Path(os.path.abspath(destination))
     with os_errors_as_output_errors(destination):
-        if not destination.exists():
-            os.replace(staging, destination)
+        if seen is None or not os.path.lexists(destination):  # nothing to replace: taken only while it is so
+            if not _move_unless_there(staging, destination):
+                raise _changed(destination)
             return destination
-        aside = destination.with_name(f".{destination.name}.{os.getpid()}.{secrets.token_hex(4)}.replaced")
-        os.replace(destination, aside)
-        try:
-            os.replace(staging, destination)
-        except BaseException:  # an interrupt between the two renames: the old folder goes back
-            if not destination.exists():
-                os.replace(aside, destination)
-            raise
-    try:
-        shutil.rmtree(aside, ignore_errors=True)
-    except BaseException:  # an interrupt mid-deletion finishes it first: the old folder, renamed aside, is no one's now
-        shutil.rmtree(aside, ignore_errors=True)
-        raise
+        if _renameat2(staging, destination, RENAME_EXCHANGE):
+            old = staging  # the staging folder's name now holds the destination's earlier content
+            try:
+                unchanged = snapshot(old) == seen
+            except BaseException:  # an interrupt before the check: put back, the caller deletes its staging
+                unchanged = False
+                raise
+            finally:
+                if not unchanged:
+                    _renameat2(staging, destination, RENAME_EXCHANGE)
+            if not unchanged:
+                raise _changed(destination)
+        else:
+            if snapshot(destination) != seen:
+                raise _changed(destination)
+            old = destination.with_name(f".{destination.name}.{os.getpid()}.{secrets.token_hex(4)}.replaced")
+            os.replace(destination, old)
+            try:
+                os.replace(staging, destination)
+            except BaseException:  # an interrupt between the two renames: the old folder goes back
+                if not destination.exists():
+                    os.replace(old, destination)
+                raise
+    _delete(old)
     return destination
+
+
+def _move_unless_there(source: Path, target: Path) -> bool:
+    """Rename ``source`` to ``target`` unless something is at ``target`` (then False), in one step where the
+    OS allows (a plain rename would replace an empty folder made meanwhile)."""
+    try:
+        if _renameat2(source, target, RENAME_NOREPLACE):
+            return True
+    except OSError as error:
+        if error.errno in (errno.EEXIST, errno.ENOTEMPTY):
+            return False
+        raise
+    if os.path.lexists(target):
+        return False
+    os.rename(source, target)
+    return True
+
+
+def _delete(old: Path) -> None:
+    """Delete the replaced folder, even when an interrupt lands during the deletion (a hidden copy of a whole
+    dataset had been left behind): renamed aside, it is no one's now."""
+    try:
+        remove_folder(old) if old.is_dir() and not old.is_symlink() else old.unlink(missing_ok=True)
+    except BaseException:
+        remove_folder(old) if old.is_dir() and not old.is_symlink() else old.unlink(missing_ok=True)
+        raise
+
+
+def publish_folder(staging: Path, destination: str | Path) -> Path:
+    """Move a finished ``staging`` folder to ``destination``, replacing what is there now (:func:`publish`
+    with what is there as what was seen: for a caller that checked ``destination`` just before)."""
+    return publish(staging, destination, snapshot(destination))
 
 
 def remove_folder(path: Path) -> None:

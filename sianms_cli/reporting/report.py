@@ -34,7 +34,7 @@ from typing import Any, Mapping
 
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
 from sianms_cli.io import (RECORD_MAX_BYTES, build_folder, first_foreign_file, is_inside_working_folder, read_json,
-                           real_path, write_text)
+                           real_path, snapshot, write_text)
 from sianms_cli.json_stream import is_finite_number
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.reporting.eval_table import (
@@ -671,6 +671,7 @@ def run(config: ReportConfig, out: str | Path | None = None, *, overwrite: bool 
     eval_folder = Path(config.eval)
     out = Path(out) if out is not None else eval_folder / DEFAULT_FOLDER
     check_output(out, overwrite)
+    seen = snapshot(out)  # publishing refuses an out that changed meanwhile
     progress.start(4, "step", "report")
     summary = read_evaluation(eval_folder)
     content: dict[str, Any] = dict(summary)
@@ -706,6 +707,6 @@ def run(config: ReportConfig, out: str | Path | None = None, *, overwrite: bool 
         progress.advance()
         return markdown
 
-    published, markdown = build_folder(out, write)
+    published, markdown = build_folder(out, write, seen)
     progress.advance()
     return Report(published, content, markdown)

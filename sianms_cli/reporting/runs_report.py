@@ -35,7 +35,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from sianms_cli.errors import DataFormatError, SianmsError
-from sianms_cli.io import RECORD_MAX_BYTES, build_folder, read_json
+from sianms_cli.io import RECORD_MAX_BYTES, build_folder, read_json, snapshot
 from sianms_cli.json_stream import is_finite_number
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.reporting.eval_table import (
@@ -371,11 +371,13 @@ def run(config: RunsReportConfig, out: str | Path, *, overwrite: bool = False,
     """
     out = Path(out)
     check_output(out, overwrite)
+    seen = snapshot(out)  # publishing refuses an out that changed meanwhile
     progress.start(2, "step", "report")
     runs = read_runs(config.evals)
     content = summarize(config.evals, runs)
     progress.advance()
+    title = f"sianms report: {len(runs)} runs"
     published, markdown = build_folder(
-        out, lambda staging: write_report_files(staging, f"sianms report: {len(runs)} runs", document(content), content))
+        out, lambda staging: write_report_files(staging, title, document(content), content), seen)
     progress.advance()
     return Report(published, content, markdown)

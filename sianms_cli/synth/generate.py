@@ -223,13 +223,14 @@ def run(
     check_workers(workers)
     out = io.real_path(out)  # through a symbolic link: replace the folder it names, not the link
     check_output(out, overwrite=overwrite)
+    seen = io.snapshot(out)  # publishing refuses an OUT that changed meanwhile, deleting nothing
     names = config.scene_names()
 
     def write(staging: Path) -> None:
         _write_dataset(staging, config, names, progress, workers)
-        check_output(out, overwrite=overwrite)  # again: OUT may have changed during a long run
+        check_output(out, overwrite=overwrite)  # again, for a clear reason: OUT may have changed during a long run
 
-    io.build_folder(out, write)
+    io.build_folder(out, write, seen)
     return SynthResult(out, config.version, len(names), len(names) * config.keyframes)
 
 
