@@ -381,7 +381,7 @@ def verified_shards(cache: str | Path, dataset: str) -> list[Path]:
     shard-name order, once the folder has been checked against the manifest (:func:`verify_cache`):
     the only way readers get shard paths, so every command refuses what another refuses."""
     cache = Path(cache)
-    manifest = verify_cache(cache)
+    manifest = verify_cache(cache, (dataset,))
     paths = [cache / name for name in sorted(manifest["files"]) if name.split("/")[0] == dataset]
     if not paths:
         raise DataFormatError(cache / dataset, f"no {dataset} shard files: the cache's manifest lists none")
@@ -392,34 +392,45 @@ def verified_shard(cache: str | Path, dataset: str, shard: str) -> Path:
     """The file of one shard of ``dataset`` (``<dataset>/<shard>.parquet``), checked as :func:`verified_shards`'."""
     cache = Path(cache)
     name = f"{dataset}/{shard}.parquet"
-    if name not in verify_cache(cache)["files"]:
+    files = verify_cache(cache, ())["files"]
+    if name not in files:
         raise DataFormatError(cache / name, f"not listed in {MANIFEST}: the cache has no such shard; {PREPARE_AGAIN}")
+    check_shard_file(cache / name, files[name])
     return cache / name
 
 
-def verify_cache(cache: str | Path) -> dict[str, Any]:
+def verify_cache(cache: str | Path, datasets: tuple[str, ...] = DATASETS) -> dict[str, Any]:
     """The manifest of a complete cache (:func:`complete_manifest`), once the folder is checked against it.
 
-    Every file the manifest lists must be there, a regular file of the recorded size, row count
-    and SHA-256, with unique ids where the schema has them (:data:`UNIQUE_IDS`); nothing else may
-    be in the shard folders but hidden files (a stray or copied-in shard would be trained on, or
-    scored, while the cache's fingerprint stays the same). The first difference raises one
-    DataFormatError naming the file and what differs.
+    Every file the manifest lists must be there, a regular file of the recorded size; nothing else
+    may be in the shard folders but hidden files (a stray or copied-in shard would be trained on,
+    or scored, while the cache's fingerprint stays the same). The files of ``datasets`` must also
+    have the recorded row count and SHA-256, with unique ids where the schema has them
+    (:data:`UNIQUE_IDS`): :func:`check_shard_file`, which the readers of the other datasets run on
+    theirs (:func:`verified_shards`). The first difference raises one DataFormatError naming the
+    file and what differs.
 
-    Hashing reads every byte once, so each cache is checked once per process (and each file
-    once, however many caches list it): a training's epochs and an evaluation's scenes reuse the
-    result. A manifest or a file replaced since (another identity) is checked again.
+    Hashing reads every byte once, so each file is checked once per process, and a cache's listing
+    once: a training's epochs and an evaluation's scenes reuse the result. A manifest or a file
+    replaced since (another identity) is checked again.
     """
     cache = Path(cache)
-    manifest = complete_manifest(cache)
-    key = (str(real_path(cache)), _identity(cache / MANIFEST))
-    if key not in _CHECKED_CACHES:
+    try:
+        key = (str(real_path(cache)), _identity(cache / MANIFEST))
+    except OSError:  # no manifest: complete_manifest says so
+        key = None
+    if key is None or key not in _CHECKED_CACHES:
+        manifest = complete_manifest(cache)
         listed = _listed_files(cache, manifest)
         _refuse_unlisted(cache, listed)
         for name, entry in listed.items():
-            check_shard_file(cache / name, entry)
+            check_shard_size(cache / name, entry)
         _CHECKED_CACHES[key] = manifest
-    return _CHECKED_CACHES[key]
+    manifest = _CHECKED_CACHES[key]
+    for name, entry in manifest["files"].items():
+        if name.split("/")[0] in datasets:
+            check_shard_file(cache / name, entry)
+    return manifest
 
 
 def checked_files() -> set[tuple]:
@@ -474,22 +485,28 @@ def _refuse_unlisted(cache: Path, listed: dict[str, Any]) -> None:
                                              f"write there (copied in?); remove it, or {PREPARE_AGAIN}")
 
 
-def check_shard_file(path: Path, entry: dict[str, Any]) -> None:
-    """Refuse a shard file that differs from its manifest ``entry``: missing, not a regular file, another
-    size, row count or SHA-256, or an id twice (:data:`UNIQUE_IDS`). Checked once per process and file."""
+def check_shard_size(path: Path, entry: dict[str, Any]) -> os.stat_result:
+    """Refuse a shard file that is missing, not a regular file, or of another size than its manifest ``entry``."""
     try:
         status = path.stat()
     except FileNotFoundError:
         raise DataFormatError(path, f"missing: {MANIFEST} lists it; {PREPARE_AGAIN}") from None
     if not stat.S_ISREG(status.st_mode):
         raise DataFormatError(path, f"not a regular file; {PREPARE_AGAIN}")
-    size = status.st_size
-    key = ((status.st_dev, status.st_ino, size, status.st_mtime_ns), entry["rows"], entry["sha256"])
+    if entry.get("bytes") is not None and status.st_size != entry["bytes"]:
+        raise DataFormatError(path, f"{status.st_size:,} bytes where {MANIFEST} records {entry['bytes']:,} (cut "
+                                    f"short or altered); {PREPARE_AGAIN}")
+    return status
+
+
+def check_shard_file(path: Path, entry: dict[str, Any]) -> None:
+    """Refuse a shard file that differs from its manifest ``entry``: missing, not a regular file, another
+    size (:func:`check_shard_size`), row count or SHA-256, or an id twice (:data:`UNIQUE_IDS`). Checked
+    once per process and file."""
+    status = check_shard_size(path, entry)
+    key = ((status.st_dev, status.st_ino, status.st_size, status.st_mtime_ns), entry["rows"], entry["sha256"])
     if key in _CHECKED_FILES:
         return
-    if entry.get("bytes") is not None and size != entry["bytes"]:
-        raise DataFormatError(path, f"{size:,} bytes where {MANIFEST} records {entry['bytes']:,} (cut short or "
-                                    f"altered); {PREPARE_AGAIN}")
     if sha256_of(path) != entry["sha256"]:
         raise DataFormatError(path, f"its content is not what {MANIFEST} records (another SHA-256: altered or "
                                     f"replaced); {PREPARE_AGAIN}")

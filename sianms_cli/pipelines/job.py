@@ -135,10 +135,13 @@ class EvalResult:
 # --------------------------------------------------------------------------- inputs
 
 
+EVAL_DATASETS = ("detections", "frustums")  # the cache's datasets eval reads: checked whole at its start
+
+
 def cache_settings(cache: Path, db: NuScenesDB, split: str, scenes: list[str]) -> dict[str, Any]:
     """The cache's resolved prepare config, checked to be a complete cache of this dataset's split whose
     folder holds what its manifest lists (:func:`~sianms_cli.data.cache.verify_cache`)."""
-    config = verify_cache(cache)["config"]
+    config = verify_cache(cache, EVAL_DATASETS)["config"]
     where = cache / "manifest.json"
     if config.get("dataset_sha256") != dataset_fingerprint(db.table_root):
         raise DataFormatError(where, "the cache was prepared from another dataset than --dataroot/--version",
@@ -224,7 +227,7 @@ def resolved_config(config: EvalConfig, db: NuScenesDB, scenes: list[str], model
         data["thresholds_from"] = calibration.identity
     data.update(sianms_classes=list(config.sianms_classes), dis_thr=models.dis_thr, methods=list(config.method_names),
                 dataset_sha256=dataset_fingerprint(db.table_root), split_scenes=scenes,
-                cache_sha256=cache_fingerprint(verify_cache(config.cache)),
+                cache_sha256=cache_fingerprint(verify_cache(config.cache, EVAL_DATASETS)),
                 siamese_sha256=models.siamese_sha256, fpointnet_sha256=models.fpointnet_sha256)
     return data
 

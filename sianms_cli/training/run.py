@@ -664,8 +664,9 @@ INPUTS = "inputs"  # a checkpoint's extra: the content fingerprints of the cache
 
 def cache_inputs(cache: str | None, val_cache: str | None) -> dict[str, str]:
     """The content fingerprints of a training's caches, by flag (:func:`cache_fingerprint`), each cache's
-    folder checked against its manifest first (:func:`~sianms_cli.data.cache.verify_cache`, once per command)."""
-    return {flag: cache_fingerprint(verify_cache(path))
+    folder checked against its manifest first (:func:`~sianms_cli.data.cache.verify_cache`: the listing and
+    sizes; each dataset's digests when a reader first takes its files, before the first epoch)."""
+    return {flag: cache_fingerprint(verify_cache(path, ()))
             for flag, path in (("--cache", cache), ("--val-cache", val_cache)) if path is not None}
 
 
