@@ -552,6 +552,9 @@ def publish(staging: Path, destination: str | Path, seen: Snapshot | None) -> Pa
             if not _move_unless_there(staging, destination):
                 raise _changed(destination)
             return destination
+        if not stat.S_ISDIR(os.lstat(destination).st_mode):  # a folder replaces a folder, never a file or a link
+            raise OutputExistsError(f"{destination}: exists and is not a folder (a file, or a link); choose "
+                                    "another --out")
         if _renameat2(staging, destination, RENAME_EXCHANGE):
             old = staging  # the staging folder's name now holds the destination's earlier content
             try:

@@ -142,3 +142,20 @@ def test_an_interrupt_between_the_exchange_and_its_check_puts_the_destination_ba
     with pytest.raises(KeyboardInterrupt):
         publish(staged(tmp_path), out, seen)
     assert (out / "report.md").read_text() == "old" and (tmp_path / "staging" / "report.md").read_text() == "new"
+
+
+@pytest.mark.parametrize("kind", ["file", "link", "link loop"])
+def test_a_folder_never_replaces_a_file_or_a_link(tmp_path, rename, kind):
+    out = tmp_path / "out"
+    if kind == "file":
+        out.write_text("mine")
+    elif kind == "link":
+        (tmp_path / "elsewhere").mkdir()
+        out.symlink_to(tmp_path / "elsewhere")
+    else:
+        out.symlink_to(tmp_path / "loop")
+        (tmp_path / "loop").symlink_to(out)
+    before = snapshot(out)
+    with pytest.raises(io.OutputExistsError, match="exists and is not a folder"):
+        publish(staged(tmp_path), out, before)
+    assert snapshot(out) == before
