@@ -13,7 +13,7 @@ folder, one process, and prints from ``eval.json`` and the scenes' timings:
   against in the same run;
 - with ``--checks``, the cost of the cache's checks (the folder against its manifest: every shard
   file's size, rows, SHA-256 and unique ids, once when the command starts; each scene's point
-  lists): whole evaluations with the checks and with them switched off, in turn, three times each.
+  lists): whole evaluations with the checks and with them switched off, in turn, five times each.
 
 Usage: python bench/eval.py [--scenes 3] [--threads 1] [--device cuda] [--checks]
        python bench/eval.py --dataroot D --split S --cache C --siamese R1 --fpointnet R2
@@ -80,14 +80,14 @@ def timed_evaluation(config: EvalConfig, out: Path, checks: bool) -> float:
 
 
 def measure_checks(config: EvalConfig, folder: Path) -> str:
-    """Whole evaluations with and without the checks, alternated, three times each (after the main one, so
+    """Whole evaluations with and without the checks, alternated, five times each (after the main one, so
     none pays for the first compilation of the kernels)."""
     seconds: dict[bool, list[float]] = {True: [], False: []}
-    for attempt in range(3):
+    for attempt in range(5):
         for checks in (True, False):
             seconds[checks].append(timed_evaluation(config, folder / f"eval-checks-{checks}-{attempt}", checks))
     best = {checks: min(values) for checks, values in seconds.items()}
-    return (f"cache checks: whole evaluation {best[True]:.2f} s with, {best[False]:.2f} s without (best of 3 each); "
+    return (f"cache checks: whole evaluation {best[True]:.2f} s with, {best[False]:.2f} s without (best of 5 each); "
             f"with / without {best[True] / best[False]:.3f}")
 
 

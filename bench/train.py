@@ -9,7 +9,7 @@ Prints, all measured in the same run, each in a fresh process:
 - with ``--precisions``, each other precision's pairs per second against fp32's on 2 threads;
 - with ``--checks``, the cost of checking the cache against its manifest (every shard file's size,
   rows, SHA-256 and unique ids, once when the command starts): the whole run's seconds, start
-  included, with the checks and with them switched off, on 1 thread, in turn, each pair three times.
+  included, with the checks and with them switched off, on 1 thread, in turn, each pair five times.
 
 ``--device cuda`` trains on the GPU (the thread counts are then the CPU's, which read and pair
 the batches).
@@ -87,14 +87,14 @@ def child(cache: Path, out: Path, threads: int, epochs: int, precision: str = "f
 
 
 def measure_checks(cache: Path, work: Path, epochs: int, device: str) -> None:
-    """Whole-run seconds (start included) with and without the manifest checks, alternated, three times each."""
+    """Whole-run seconds (start included) with and without the manifest checks, alternated, five times each."""
     seconds: dict[str, list[float]] = {"on": [], "off": []}
-    for attempt in range(3):
+    for attempt in range(5):
         for checks in ("on", "off"):
             figures = child(cache, work / f"run-checks-{checks}-{attempt}", 1, epochs, device=device, checks=checks)
             seconds[checks].append(figures["total_seconds"])
     best = {checks: min(values) for checks, values in seconds.items()}
-    print(f"manifest checks: whole run {best['on']:.2f} s with, {best['off']:.2f} s without (best of 3 each); "
+    print(f"manifest checks: whole run {best['on']:.2f} s with, {best['off']:.2f} s without (best of 5 each); "
           f"with / without {best['on'] / best['off']:.3f}")
 
 
