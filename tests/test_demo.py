@@ -37,11 +37,11 @@ def interrupted_then_resumed(tmp_path_factory):
         patch.setitem(demo.PROFILES, "quick", TINY)
         patch.setitem(demo.RUNNERS, "fpointnet", interrupted)
         with pytest.raises(KeyboardInterrupt):
-            run(DemoConfig(quick=True, seed=3), out,
+            run(DemoConfig(quick=True, seed=3, train_fpointnet=True), out,
                 on_stage=lambda stage, event, seconds: events.append((stage, event)))
         record = json.loads((out / "demo.json").read_text())
         patch.setitem(demo.RUNNERS, "fpointnet", REAL_FPOINTNET)
-        result = run(DemoConfig(quick=True, seed=3), out)
+        result = run(DemoConfig(quick=True, seed=3, train_fpointnet=True), out)
     return events, record, result
 
 
@@ -63,16 +63,17 @@ def test_an_interrupted_demo_resumes_at_the_stage_it_was_in(interrupted_then_res
 def test_the_cli_on_a_finished_demo_skips_every_stage_and_prints_the_table(interrupted_then_resumed, monkeypatch):
     monkeypatch.setitem(demo.PROFILES, "quick", TINY)
     out = str(interrupted_then_resumed[2].out)
-    result = runner.invoke(app, ["demo", "--quick", "--out", out, "--seed", "3"])
+    result = runner.invoke(app, ["demo", "--quick", "--out", out, "--seed", "3", "--train-fpointnet"])
     assert result.exit_code == 0, result.output
     assert "| Areas |" in result.stdout and "wall time by stage: synth" in result.stdout
     assert f"report: {out}/eval/report/report.html" in result.stdout
     assert "[1/7] synth: done earlier" in result.stderr
-    result = runner.invoke(app, ["demo", "--quick", "--out", out, "--seed", "3", "--json", "--quiet"])
+    result = runner.invoke(app, ["demo", "--quick", "--out", out, "--seed", "3", "--train-fpointnet", "--json",
+                                 "--quiet"])
     report = json.loads(result.stdout)
     assert report["config"]["profile"] == "quick" and set(report["stages"]) == set(demo.STAGES)
     assert report["table"] == interrupted_then_resumed[2].table
-    result = runner.invoke(app, ["demo", "--quick", "--out", out, "--json"])
+    result = runner.invoke(app, ["demo", "--quick", "--out", out, "--train-fpointnet", "--json"])
     assert result.exit_code == 2 and result.stderr.startswith("error:") and "differs in: seed" in result.stderr
 
 
@@ -81,8 +82,8 @@ def test_more_epochs_with_overwrite_redo_only_fpointnet_eval_and_report(interrup
     monkeypatch.setitem(demo.PROFILES, "quick", TINY)
     out = tmp_path / "demo"
     shutil.copytree(interrupted_then_resumed[2].out, out)
-    result = runner.invoke(app, ["demo", "--quick", "--out", str(out), "--seed", "3", "--fpointnet-epochs", "2",
-                                 "--overwrite"])
+    result = runner.invoke(app, ["demo", "--quick", "--out", str(out), "--seed", "3", "--train-fpointnet",
+                                 "--fpointnet-epochs", "2", "--overwrite"])
     assert result.exit_code == 0, result.output
     assert "[4/7] siamese: done earlier" in result.stderr and "[5/7] fpointnet: done in" in result.stderr
     assert len((out / "fpointnet" / "metrics.csv").read_text().splitlines()) == 1 + 2  # header, 2 epochs
@@ -146,9 +147,10 @@ def test_a_damaged_demo_record_is_named_with_its_field(tmp_path, stages, message
 
 def test_profiles_and_overrides():
     assert DemoConfig().settings == demo.DEFAULT and DemoConfig(quick=True).settings == demo.QUICK
-    custom = DemoConfig(scenes=4, siamese_epochs=2, fpointnet_epochs=5).settings
+    custom = DemoConfig(scenes=4, siamese_epochs=2, fpointnet_epochs=5, train_fpointnet=True).settings
     assert (custom.scenes, custom.siamese_epochs, custom.fpointnet_epochs) == (4, 2, 5)
     assert demo.DEFAULT.min_box_height == pytest.approx(25.0 * demo.DEFAULT.image_scale)
+    assert (DemoConfig().seed, DemoConfig(quick=True).seed, DemoConfig(quick=True, seed=0).seed) == (0, 1, 0)
     resolved = DemoConfig(quick=True, seed=4).resolved()
     assert resolved["profile"] == "quick" and resolved["seed"] == 4 and resolved["scenes"] == demo.QUICK.scenes
     assert resolved["version"] == "v1.0-mini" and DemoConfig().splits == ("mini_train", "mini_val")
@@ -156,7 +158,9 @@ def test_profiles_and_overrides():
     assert larger.splits == ("train", "val") and larger.settings.scenes == 40
     for kwargs, flag in (({"seed": -1}, "--seed"), ({"scenes": 1}, "--scenes"), ({"scenes": 11}, "--scenes"),
                          ({"version": "v1.0-trainval", "scenes": 851}, "--scenes"),
-                         ({"version": "v1.0-test"}, "--version"), ({"fpointnet_epochs": 0}, "--fpointnet-epochs"),
+                         ({"version": "v1.0-test"}, "--version"),
+                         ({"fpointnet_epochs": 0, "train_fpointnet": True}, "--fpointnet-epochs"),
+                         ({"fpointnet_epochs": 3}, "--fpointnet-epochs needs --train-fpointnet"),
                          ({"precision": "fp16"}, "--precision must be fp32 or bf16")):
         with pytest.raises(SianmsError, match=flag):
             DemoConfig(**kwargs)
@@ -164,13 +168,13 @@ def test_profiles_and_overrides():
 
 def test_overwrite_keeps_the_stages_before_the_first_one_the_change_affects(tmp_path):
     out = tmp_path / "demo"
-    record = demo.claim_output(out, DemoConfig().resolved(), overwrite=False)
+    record = demo.claim_output(out, DemoConfig(train_fpointnet=True).resolved(), overwrite=False)
     for stage in demo.STAGES:  # empty folders: what is in each is its command's to recognise (test below)
         if stage != "report":  # inside eval's: that would not be empty
             (out / demo.FOLDERS[stage]).mkdir(parents=True, exist_ok=True)
         record["stages"][stage] = {"done": True, "seconds": 1.0}
     (out / "demo.json").write_text(json.dumps(record))
-    more_epochs = DemoConfig(fpointnet_epochs=demo.DEFAULT.fpointnet_epochs + 2).resolved()
+    more_epochs = DemoConfig(fpointnet_epochs=demo.DEFAULT.fpointnet_epochs + 2, train_fpointnet=True).resolved()
     with pytest.raises(OutputExistsError, match="differs in: fpointnet_epochs"):
         demo.claim_output(out, more_epochs, overwrite=False)
     record = demo.claim_output(out, more_epochs, overwrite=True)
@@ -181,6 +185,24 @@ def test_overwrite_keeps_the_stages_before_the_first_one_the_change_affects(tmp_
     assert demo.first_changed_stage(more_epochs, more_epochs) == len(demo.STAGES)
     bf16 = DemoConfig(precision="bf16").resolved()
     assert demo.first_changed_stage(DemoConfig().resolved(), bf16) == demo.STAGES.index("siamese")
+    trained = DemoConfig(train_fpointnet=True).resolved()
+    assert demo.first_changed_stage(DemoConfig().resolved(), trained) == demo.STAGES.index("fpointnet")
+    assert DemoConfig().stages == tuple(stage for stage in demo.STAGES if stage != "fpointnet")
+
+
+def test_the_quick_demo_evaluates_the_zoo_detector_and_tells_the_methods_apart(tmp_path):
+    """The quick demo as typed: no F-PointNets stage, the zoo's detector in eval; car AP above zero
+    in both regions, duplicates in the overlap that vanilla keeps and NMS removes."""
+    result = runner.invoke(app, ["demo", "--quick", "--out", str(tmp_path / "demo"), "--threads", "2"])
+    assert result.exit_code == 0, result.output
+    assert "fpointnet" not in result.stderr and "[6/6] report: done in" in result.stderr
+    table = json.loads((tmp_path / "demo" / "eval" / "table.json").read_text())
+    assert json.loads((tmp_path / "demo" / "demo.json").read_text())["config"]["fpointnet"] == demo.ZOO_FPOINTNET
+    assert not (tmp_path / "demo" / "fpointnet").exists()
+    for region in ("all", "overlap"):
+        assert table["regions"][region]["vanilla"]["car"]["AP"] > 0, region
+    duplicates = table["duplicates"]
+    assert duplicates["vanilla"]["overlap"]["car"] > duplicates["axis-nms"]["overlap"]["car"]
 
 
 def test_a_trainval_demo_synthesises_trainval_names_and_prepares_its_train_and_val_splits(tmp_path, monkeypatch):

@@ -17,37 +17,44 @@ def demo_cli(
     quick: bool = typer.Option(False, "--quick", help="The quick profile, for CI: 2 scenes, 4 siamese and 4 F-PointNets "
                                                       "epochs of batch 8, 128 points per frustum (times: "
                                                       "docs/performance.md)."),
-    seed: int = typer.Option(0, help="Seed of the world, the 2-D detector, both trainings and eval."),
+    seed: Optional[int] = typer.Option(None, help="Seed of the world, the 2-D detector, the trainings and eval "
+                                                  "[default: 0; 1 with --quick, whose one validation scene of "
+                                                  "seed 0 holds a single car]."),
     version: str = typer.Option("v1.0-mini", help="v1.0-mini (10 scenes, 2 of them validation) or v1.0-trainval "
                                                   "(up to 850, 150/850 of them validation: a larger study)."),
     scenes: Optional[int] = typer.Option(None, help="Scenes to generate: 2-10 (v1.0-mini), 2-850 (v1.0-trainval) "
                                                     "[default: the profile's]."),
     siamese_epochs: Optional[int] = typer.Option(None, help="Siamese epochs [default: the profile's]."),
-    fpointnet_epochs: Optional[int] = typer.Option(None, help="Frustum PointNets epochs [default: the profile's]."),
-    precision: str = typer.Option("fp32", help="Both trainings in fp32 or bf16 (faster where the CPU computes "
-                                               "bfloat16 natively: AVX512-BF16, AMX; other weights, other numbers)."),
+    train_fpointnet: bool = typer.Option(False, "--train-fpointnet",
+                                         help="Train Frustum PointNets as a stage instead of evaluating the model "
+                                              "zoo's (zoo:fpointnet-single, `sianms zoo`)."),
+    fpointnet_epochs: Optional[int] = typer.Option(None, help="With --train-fpointnet: its epochs [default: the "
+                                                              "profile's]."),
+    precision: str = typer.Option("fp32", help="The trainings in fp32 or bf16 (bf16 only where the CPU computes "
+                                               "it natively and SIANMS_NATIVE_KERNELS=1: docs/reproducibility.md)."),
     threads: Optional[int] = typer.Option(None, min=1, help="CPU threads for torch [default: torch's choice]."),
     workers: int = typer.Option(2, min=1, help="Processes for synth (the dataset does not depend on it)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a demo of another config at --out."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars or stage lines."),
     as_json: bool = typer.Option(False, "--json", help="Print the stages' times and the comparison as JSON."),
 ) -> None:
-    """Generate a synthetic nuScenes mini, prepare it, train both networks, compare every
-    duplicate-handling method and write the report: the whole study on this machine.
+    """Generate a synthetic nuScenes mini, prepare it, train the siamese network, compare every
+    duplicate-handling method with the model zoo's Frustum PointNets (or one trained here, with
+    --train-fpointnet) and write the report: the whole study on this machine.
 
     Each stage prints its wall time; a rerun skips finished stages and resumes the one that
     was interrupted. Every stage's folder is an ordinary output of its own command.
     """
-    from sianms_cli.demo import STAGES, DemoConfig, run, stage_shares
+    from sianms_cli.demo import DemoConfig, run, stage_shares
 
     use_torch_threads(threads)
     config = DemoConfig(quick=quick, seed=seed, version=version, scenes=scenes, siamese_epochs=siamese_epochs,
-                        fpointnet_epochs=fpointnet_epochs, precision=precision)
+                        fpointnet_epochs=fpointnet_epochs, precision=precision, train_fpointnet=train_fpointnet)
 
     def announce(stage: str, event: str, seconds: float | None) -> None:
         if quiet:
             return
-        position = f"[{STAGES.index(stage) + 1}/{len(STAGES)}] {stage}"
+        position = f"[{config.stages.index(stage) + 1}/{len(config.stages)}] {stage}"
         if event == "start":
             typer.echo(f"{position} ...", err=True)
         elif event == "done":

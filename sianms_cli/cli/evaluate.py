@@ -17,8 +17,9 @@ def eval_cli(
     version: str = typer.Option("v1.0-mini", help="Version folder inside the dataroot."),
     split: str = typer.Option(..., help="Split to evaluate (its `sianms prepare` cache is --cache)."),
     cache: Path = typer.Option(..., help="Complete `sianms prepare` cache of --split."),
-    siamese: Path = typer.Option(..., help="`sianms train siamese` run folder (or its checkpoint.pt)."),
-    fpointnet: Path = typer.Option(..., help="`sianms train fpointnet` run folder (or its checkpoint.pt)."),
+    siamese: Path = typer.Option(..., help="`sianms train siamese` run folder (or its checkpoint.pt), or zoo:NAME."),
+    fpointnet: Path = typer.Option(..., help="`sianms train fpointnet` run folder (or its checkpoint.pt), or "
+                                             "zoo:NAME (`sianms zoo`)."),
     out: Path = typer.Option(..., help="Evaluation folder to write (resumed if it holds the same config)."),
     methods: str = typer.Option("all", help="'all' or a comma list of vanilla, axis-nms, rotated-nms, circle-nms, "
                                             "sianms, hybrid, gated-sianms, oracle."),
