@@ -83,7 +83,7 @@ class DemoSettings:
     image_scale: float  # of nuScenes' 1600 x 900 images
     scene_seconds: float  # nuScenes scenes last 20 s (40 key frames)
     siamese_epochs: int
-    siamese_lr: float  # 1e-3: the paper's 1e-4 needs its 25 epochs (README, `train siamese`)
+    siamese_lr: float  # 1e-3: the paper's 1e-4 needs its 25 epochs (docs/results/reidentification.md)
     fpointnet_epochs: int
     fpointnet_batch_size: int  # the original's 32; 8 gives a small training set more steps
     num_points: int  # per frustum; the original samples 1,024

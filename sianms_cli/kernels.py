@@ -2,15 +2,13 @@
 AVX2, so a seed gives the same bytes on AVX2 and AVX-512 machines.
 
 Each library picks its kernels by the CPU when it loads, and its AVX-512 kernels round otherwise
-than its AVX2 ones. Measured on an AMD EPYC with AVX-512 against an AVX2-only EPYC (README, "The
-CI gate"): OpenBLAS's kernels decide the dataset (numpy's matrix products in
+than its AVX2 ones: OpenBLAS's decide the dataset (numpy's matrix products in
 ``calibrated_sensor``), MKL's the siamese network, ATen's and numpy's own loops Frustum
-PointNets; with every setting of :func:`avx2_kernels` the quick demo's dataset, caches, both
-checkpoints and Table I cells are equal to the bit. oneDNN's setting changed nothing there; it
-is kept because torch may hand CPU convolutions to oneDNN, which picks kernels by the CPU too. The settings are read
-once, when each library loads, so :func:`use_avx2_kernels` runs before numpy and torch are
-imported: first thing in the ``sianms`` executable, whose worker processes and torchrun ranks
-inherit them.
+PointNets; under every setting of :func:`avx2_kernels` an AVX-512 and an AVX2-only machine write
+the same bytes (docs/reproducibility.md). oneDNN's setting is kept because torch may hand CPU
+convolutions to oneDNN, which picks kernels by the CPU too. The settings are read once, when
+each library loads, so :func:`use_avx2_kernels` runs before numpy and torch are imported: first
+thing in the ``sianms`` executable, whose worker processes and torchrun ranks inherit them.
 
 The CPU maker still matters: MKL picks kernels by maker, and its reproducible mode
 (``MKL_CBWR``) is documented for Intel CPUs only.

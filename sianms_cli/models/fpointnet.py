@@ -1,4 +1,5 @@
-"""Frustum PointNets v1 (Qi et al., CVPR 2018), as the released code builds it (models.md §1.3-1.8).
+"""Frustum PointNets v1 (Qi et al., CVPR 2018), as the released code builds it
+(docs/methods.md#three-stages).
 
 Three stages on a batch of frustums, each frustum ``(N, C)`` points in its frustum frame
 (x right, y down, z along the frustum's centre ray; xyz + intensity, C = 4):
@@ -10,12 +11,13 @@ Three stages on a batch of frustums, each frustum ``(N, C)`` points in its frust
    the residual from that mean to the box centre (``stage1_center``).
 3. Amodal box PointNet on the masked points relative to ``stage1_center`` (128-128-256-512,
    max-pool, one-hot, FC 512-256) -> centre residual, NH heading-bin scores and normalised
-   residuals, NS size-cluster scores and normalised residuals (layout of models.md §1.7).
+   residuals, NS size-cluster scores and normalised residuals
+   (docs/methods.md#heading-bins-and-size-clusters).
 
-Sizes are (l, w, h) as the original (models.md §1.8): the conversion from nuScenes' (w, l, h)
-happens once, in :mod:`sianms_cli.data.frustum_dataset`. Every per-point "1x1 conv" is an
-``nn.Linear`` on the last axis (measured 1.4x faster than ``Conv1d(k=1)`` on this CPU,
-models.md §8), followed by batch norm (epsilon 1e-3, TF's) and ReLU.
+Sizes are (l, w, h) as the original: the conversion from nuScenes' (w, l, h) happens once, in
+:mod:`sianms_cli.data.frustum_dataset`. Every per-point "1x1 conv" is an ``nn.Linear`` on the
+last axis (the same map as ``Conv1d(k=1)``, faster on CPUs), followed by batch norm (epsilon
+1e-3, TF's) and ReLU.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from sianms_cli.models.global_batch import BatchShare, batch_norm, dropout, unif
 
 NUM_HEADING_BINS = 12
 NUM_OBJECT_POINTS = 512
-BN_EPSILON = 1e-3  # TF batch_norm's default, which the original trained with (models.md §1.12)
+BN_EPSILON = 1e-3  # TF batch_norm's default, which the original trained with
 
 
 class PointLinear(nn.Module):
@@ -146,7 +148,7 @@ class FPointNetV1(nn.Module):
         return torch.relu(batch_norm(layer.norm, y.reshape(-1, y.shape[-1]))).reshape(*y.shape)
 
     def parse_box_output(self, box: torch.Tensor, stage1_center: torch.Tensor) -> dict[str, torch.Tensor]:
-        """Split the box net's ``3 + 2 NH + 4 NS`` outputs in the original's order (models.md §1.7)."""
+        """Split the box net's ``3 + 2 NH + 4 NS`` outputs in the original's order (docs/methods.md#heading-bins-and-size-clusters)."""
         nh, ns = self.num_heading_bins, self.num_classes
         heading_normalized = box[:, 3 + nh:3 + 2 * nh]
         size_normalized = box[:, 3 + 2 * nh + ns:].reshape(-1, ns, 3)
@@ -166,7 +168,7 @@ def gather_object_points(xyz: torch.Tensor, mask: torch.Tensor, count: int,
     """(B, count, 3): ``count`` of each frustum's masked points, as the original's masking.
 
     More masked points than ``count``: a random subset without replacement; fewer: all of
-    them plus random repeats; none: ``count`` copies of point 0 (models.md §1.5). Done for the
+    them plus random repeats; none: ``count`` copies of point 0 (docs/methods.md#three-stages). Done for the
     whole batch at once: sorting by ``mask + uniform`` puts each frustum's masked points first,
     in random order. The original also shuffles the result; the max-pools that follow make
     the order irrelevant, so it is not shuffled here. ``share``: as :meth:`FPointNetV1.forward`'s.

@@ -1,4 +1,4 @@
-"""The Frustum PointNets loss (FPN-TF ``model_util.get_loss``, models.md §1.8-1.10) and its encodings.
+"""The Frustum PointNets loss (FPN-TF ``model_util.get_loss``; docs/methods.md#frustum-pointnets-loss) and its encodings.
 
 Targets travel raw: centre (B, 3) and heading (B,) in the frustum frame, size (B, 3) as
 (l, w, h) and the size cluster (B,) (= the class: one cluster per class). The heading-bin and
@@ -24,7 +24,7 @@ def angle_to_class(angle: torch.Tensor, num_bins: int) -> tuple[torch.Tensor, to
     """Heading bin and residual (radians, in [-half bin, half bin)) of each angle.
 
     Bin k is centred at k * 2π/NH (bin 0 on 0): the angle is wrapped to [0, 2π), shifted by
-    half a bin, floored to a bin; the residual is the rest (models.md §1.8).
+    half a bin, floored to a bin; the residual is the rest (docs/methods.md#heading-bins-and-size-clusters).
     """
     width = 2 * math.pi / num_bins
     shifted = torch.remainder(torch.remainder(angle, 2 * math.pi) + width / 2, 2 * math.pi)
@@ -39,7 +39,7 @@ def class_to_angle(bins: torch.Tensor, residual: torch.Tensor, num_bins: int) ->
 
 
 def box_corners(center: torch.Tensor, heading: torch.Tensor, lwh: torch.Tensor) -> torch.Tensor:
-    """(B, 8, 3) corners in the original's order (models.md §1.9), frustum/camera frame.
+    """(B, 8, 3) corners in the original's order (docs/methods.md#box-corners), frustum/camera frame.
 
     Before rotation x = ±l/2, y = ±h/2, z = ±w/2; rotated by R_y(heading) =
     [[c, 0, s], [0, 1, 0], [-s, 0, c]], then moved to the centre.

@@ -82,7 +82,7 @@ from sianms_cli.training.run import (
 )
 
 # Size clusters for a class without a training frustum: the nuScenes means (l, w, h) MM3D uses
-# as anchors (models.md §1.8). A class with neither is refused.
+# as anchors. A class with neither is refused.
 PRIOR_SIZES = {
     "car": (4.60718145, 1.95017717, 1.72270761),
     "pedestrian": (0.7256437, 0.66344886, 1.75748069),
@@ -245,7 +245,7 @@ def to_tensors(batch: dict[str, np.ndarray], num_classes: int, device: torch.dev
 
 
 def box_scores(outputs: dict[str, torch.Tensor]) -> torch.Tensor:
-    """(B,) the original's 3-D box score with GT 2-D boxes (FPN-TF ``test.py``, models.md §1.14).
+    """(B,) the original's 3-D box score with GT 2-D boxes (FPN-TF ``test.py``; docs/methods.md#box-score).
 
     log(mean object probability over the points predicted as object) + log(max heading-bin
     probability) + log(max size-cluster probability). Where no point is predicted as object
