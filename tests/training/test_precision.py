@@ -179,6 +179,26 @@ def test_a_bf16_fpointnet_training_lowers_its_losses(tiny_caches, tmp_path, nati
     assert 0 <= result.history[-1]["val_iou_0.5"] <= 1  # validated in float32
 
 
+def test_a_bf16_fpointnet_run_on_the_cosine_schedule_resumes_where_an_uninterrupted_one_ends(tiny_caches, tmp_path,
+                                                                                                native_bf16):
+    """The trainings' default path on CPUs with native bfloat16: killed between two epochs, resumed, the
+    weights are the uninterrupted run's to the bit (the schedule is a function of the samples seen)."""
+    full = FPointNetConfig(cache=str(tiny_caches[0]), epochs=2, precision="bf16", **TINY_FPOINTNET)
+    train_fpointnet(full, tmp_path / "straight")
+
+    def stop_in_epoch_two(row):
+        if row["epoch"] == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train_fpointnet(full, tmp_path / "stopped", on_epoch=stop_in_epoch_two)
+    resumed = train_fpointnet(full, tmp_path / "stopped", resume=True)
+    assert resumed.resumed_from == 1 and resumed.precision == "bf16"
+    a = load_checkpoint(tmp_path / "straight" / "checkpoint.pt").model
+    b = load_checkpoint(tmp_path / "stopped" / "checkpoint.pt").model
+    assert all(torch.equal(value, b[key]) for key, value in a.items())
+
+
 def test_an_fp16_fpointnet_run_keeps_its_loss_scale_across_a_resume(tiny_caches, tmp_path, monkeypatch):
     """fp16 runs on CUDA only; here its arithmetic runs on the CPU (slowly, tiny) so the loss
     scaler's state is checked to travel in the checkpoint: the scale moved in the first epoch
