@@ -29,10 +29,10 @@ def info_cli(
     Scenes (and how many are at night, in rain, and both, read from the words "night" and
     "rain" in their descriptions, as on real nuScenes), samples, annotations per category,
     objects per keyframe (by class), LiDAR points per annotation and per sweep, visibility and
-    attribute shares; how often one object is imaged twice: image boxes per 3-D box (the devkit's 2-D export rule) and the share imaged
-    by >= 2 cameras by class and by distance, the cars' camera-overlap share, their azimuth
-    and heading-to-axis histograms; and how much of the ego's driving goes straight. Each
-    figure prints beside its nuScenes value and source.
+    attribute shares; how often one object is imaged twice: image boxes per 3-D box (the devkit's
+    2-D export rule) and the share imaged by >= 2 cameras by class and by distance, the cars'
+    camera-overlap share, their azimuth and heading-to-axis histograms; and how much of the ego's
+    driving goes straight. Each figure prints beside its nuScenes value and source.
     """
     from sianms_cli.reporting.dataset_summary import InfoConfig, format_summary, run
 

@@ -18,13 +18,15 @@ from sianms_cli.cli._app import ProgressBar, command
 @command("synth")
 def synth_cli(
     out: Path = typer.Option(..., help="Dataroot to write: absent, empty, or an earlier synth output (--overwrite)."),
-    version: str = typer.Option("v1.0-mini", help="Version folder; v1.0-mini and v1.0-trainval use the devkit's scene names."),
+    version: str = typer.Option("v1.0-mini", help="Version folder; v1.0-mini and v1.0-trainval use the devkit's "
+                                                  "scene names."),
     scenes: Optional[int] = typer.Option(None, help="Number of 20 s scenes (default: 10 for v1.0-mini)."),
     image_scale: float = typer.Option(0.5, help="Camera images are 1600x900 times this scale."),
     seed: int = typer.Option(0, help="Same seed, byte-identical dataset."),
     sensors: str = typer.Option("all", help="'all' writes JPEGs and .pcd.bin sweeps; 'none' the tables only "
                                             "(the same annotations)."),
-    scene_seconds: float = typer.Option(20.0, help="Scene length, up to 20 s; a shorter scene is the start of the full one."),
+    scene_seconds: float = typer.Option(20.0, help="Scene length, up to 20 s; a shorter scene is the start of the "
+                                                   "full one."),
     workers: int = typer.Option(1, help="Processes sensing scenes in parallel (the output does not depend on it)."),
     overwrite: bool = typer.Option(False, "--overwrite",
                                    help="Replace --out if it holds an earlier synth output and nothing else."),

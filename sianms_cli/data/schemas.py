@@ -49,7 +49,8 @@ def detections_schema(feature_bytes: int) -> pa.Schema:
         ("gt_truncation", pa.float32()),
         ("gt_occlusion", pa.float32()),
         ("gt_distance", pa.float32()),  # metres, camera to box centre
-        ("overlap_pairs", pa.list_(pa.string())),  # pairs "CAM_A|CAM_B" of this camera whose overlap holds the GT centre
+        # the pairs "CAM_A|CAM_B" of this camera whose overlap holds the GT centre
+        ("overlap_pairs", pa.list_(pa.string())),
         ("roi_feature", pa.binary(feature_bytes)),
     ]
     return pa.schema(fields)

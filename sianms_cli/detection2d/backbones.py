@@ -187,7 +187,8 @@ class ResNet50C4(nn.Module):
                 or not all(isinstance(v, torch.Tensor) for v in state.values())):
             raise DataFormatError(path, "expected a flat state dict (name -> tensor)")
         if any(key.startswith(DETECTION_PREFIX) for key in state):
-            state = {key[len(DETECTION_PREFIX):]: value for key, value in state.items() if key.startswith(DETECTION_PREFIX)}
+            state = {key[len(DETECTION_PREFIX):]: value for key, value in state.items()
+                     if key.startswith(DETECTION_PREFIX)}
         model = cls(min_size, max_size)
         expected = model.state_dict()
         missing = [key for key in expected if key not in state]
@@ -197,7 +198,8 @@ class ResNet50C4(nn.Module):
                 f"optionally prefixed '{DETECTION_PREFIX}')", field=missing[0])
         for key, value in expected.items():
             if tuple(state[key].shape) != tuple(value.shape):
-                raise DataFormatError(path, f"shape {tuple(state[key].shape)}, expected {tuple(value.shape)}", field=key)
+                raise DataFormatError(path, f"shape {tuple(state[key].shape)}, expected {tuple(value.shape)}",
+                                      field=key)
             if state[key].is_floating_point() and not torch.isfinite(state[key]).all():
                 raise DataFormatError(path, "holds a NaN or an infinity: every ROI feature would be one",
                                       field=key)

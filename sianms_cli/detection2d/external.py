@@ -5,10 +5,11 @@ Schema (one row per detection), Parquet or JSON:
 | field | type | meaning |
 |---|---|---|
 | ``sample_data_token`` | string | the camera sample_data (image) the detection is in |
-| ``x1``, ``y1``, ``x2``, ``y2`` | float | box in pixels of the original image, ``x1 < x2``, ``y1 < y2``; it may reach past the image's border, not lie wholly beyond it |
+| ``x1``, ``y1``, ``x2``, ``y2`` | float | box in pixels of the original image, ``x1 < x2``, ``y1 < y2`` |
 | ``score`` | float | confidence in [0, 1] |
 | ``class`` | string | a nuScenes detection class (``car``, ``pedestrian``, ``bicycle``, ...) |
 
+A box may reach past the image's border, not lie wholly beyond it.
 JSON is either a list of such objects or ``{"detections": [...]}``. Rows of classes that
 are not being prepared are ignored; every token must be a camera sample_data of the
 dataset (checked when the file is loaded, before anything is written).

@@ -58,8 +58,8 @@ PAPER: dict[str, Any] = {
     **DETECTION_CVPR_2019,
     "class_range": {name: DETECTION_CVPR_2019["class_range"][name] for name in PAPER_CLASSES},
 }
-"""The paper's protocol (its §V-A; docs/metrics.md#the-papers-protocol): car, pedestrian and bicycle (its "cyclist"), with the devkit's
-ranges, thresholds 0.5/1/2/4 m, TP errors at 2 m."""
+"""The paper's protocol (its §V-A; docs/metrics.md#the-papers-protocol): car, pedestrian and bicycle (its
+"cyclist"), with the devkit's ranges, thresholds 0.5/1/2/4 m, TP errors at 2 m."""
 
 PRESETS: dict[str, dict[str, Any]] = {"detection_cvpr_2019": DETECTION_CVPR_2019, "paper": PAPER}
 

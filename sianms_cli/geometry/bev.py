@@ -187,7 +187,8 @@ def rotated_iou_pairs(boxes_a: np.ndarray, boxes_b: np.ndarray) -> np.ndarray:
     """
     corners_a, corners_b = bev_corners(*split_boxes(boxes_a)), bev_corners(*split_boxes(boxes_b))
     if len(corners_a) != len(corners_b):
-        raise SianmsError(f"rotated_iou_pairs needs as many boxes in a as in b, got {len(corners_a)} and {len(corners_b)}")
+        raise SianmsError(f"rotated_iou_pairs needs as many boxes in a as in b, "
+                          f"got {len(corners_a)} and {len(corners_b)}")
     return rotated_iou_from_corners(corners_a, corners_b)
 
 
@@ -251,7 +252,8 @@ def axis_iou_pairs(boxes_a: np.ndarray, boxes_b: np.ndarray, mode: str = "ignore
     rectangles_a = axis_aligned_rectangles(*split_boxes(boxes_a), mode)
     rectangles_b = axis_aligned_rectangles(*split_boxes(boxes_b), mode)
     if len(rectangles_a) != len(rectangles_b):
-        raise SianmsError(f"axis_iou_pairs needs as many boxes in a as in b, got {len(rectangles_a)} and {len(rectangles_b)}")
+        raise SianmsError(f"axis_iou_pairs needs as many boxes in a as in b, "
+                          f"got {len(rectangles_a)} and {len(rectangles_b)}")
     return rectangle_iou(rectangles_a, rectangles_b)
 
 

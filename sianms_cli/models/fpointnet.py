@@ -148,7 +148,8 @@ class FPointNetV1(nn.Module):
         return torch.relu(batch_norm(layer.norm, y.reshape(-1, y.shape[-1]))).reshape(*y.shape)
 
     def parse_box_output(self, box: torch.Tensor, stage1_center: torch.Tensor) -> dict[str, torch.Tensor]:
-        """Split the box net's ``3 + 2 NH + 4 NS`` outputs in the original's order (docs/methods.md#heading-bins-and-size-clusters)."""
+        """Split the box net's ``3 + 2 NH + 4 NS`` outputs in the original's order
+        (docs/methods.md#heading-bins-and-size-clusters)."""
         nh, ns = self.num_heading_bins, self.num_classes
         heading_normalized = box[:, 3 + nh:3 + 2 * nh]
         size_normalized = box[:, 3 + 2 * nh + ns:].reshape(-1, ns, 3)

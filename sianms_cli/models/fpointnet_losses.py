@@ -1,5 +1,6 @@
-"""The Frustum PointNets loss (FPN-TF ``model_util.get_loss``; docs/methods.md#frustum-pointnets-loss) and its encodings.
+"""The Frustum PointNets loss (FPN-TF ``model_util.get_loss``) and its encodings.
 
+docs/methods.md#frustum-pointnets-loss describes the loss.
 Targets travel raw: centre (B, 3) and heading (B,) in the frustum frame, size (B, 3) as
 (l, w, h) and the size cluster (B,) (= the class: one cluster per class). The heading-bin and
 size-residual labels are encoded here, so the dataset never holds a second copy of them.

@@ -62,7 +62,8 @@ class SiameseEncoder(nn.Module):
         std = torch.as_tensor(np.asarray(std, dtype=np.float32)).clamp(min=MIN_STD)
         expected = (self.feature_shape[0],)
         if tuple(mean.shape) != expected or tuple(std.shape) != expected:
-            raise ValueError(f"input statistics must have shape {expected}, got {tuple(mean.shape)}, {tuple(std.shape)}")
+            raise ValueError(f"input statistics must have shape {expected}, "
+                             f"got {tuple(mean.shape)}, {tuple(std.shape)}")
         self.input_mean.copy_(mean)
         self.input_std.copy_(std)
 

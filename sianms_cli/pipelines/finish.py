@@ -111,7 +111,8 @@ def broken_rows(table: pa.Table) -> list[tuple[str, np.ndarray, str]]:
 
 
 def read_boxes(paths: list[Path], sample_tokens: list[str]) -> AllBoxes:
-    """The scenes' boxes tables (:data:`~.scene.BOXES_SCHEMA`) as :class:`AllBoxes`, samples indexed in ``sample_tokens``."""
+    """The scenes' boxes tables (:data:`~.scene.BOXES_SCHEMA`) as :class:`AllBoxes`, samples indexed in
+    ``sample_tokens``."""
     table = pa.concat_tables([_read_scene_table(path) for path in paths])
     position = pc.index_in(table["sample_token"], value_set=pa.array(sample_tokens, pa.string()))
     if position.null_count:

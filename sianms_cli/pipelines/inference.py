@@ -161,7 +161,8 @@ class FPointNetPredictor:
     def _sample(self, points: np.ndarray, offsets: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """(F, num_points, C) float32: each frustum's points drawn uniformly with replacement."""
         count = np.diff(offsets)
-        index = offsets[:-1, None] + np.floor(rng.random((len(count), self.num_points)) * count[:, None]).astype(np.int64)
+        position_in_frustum = np.floor(rng.random((len(count), self.num_points)) * count[:, None]).astype(np.int64)
+        index = offsets[:-1, None] + position_in_frustum
         chosen = points[index][..., :4 if self.intensity else 3].astype(np.float32)
         if self.intensity:
             chosen[..., 3] /= INTENSITY_SCALE

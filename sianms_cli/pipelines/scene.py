@@ -296,7 +296,8 @@ class SceneEvaluator:
 
         table = read_shard_table(detections_path, columns=["detection_id", "roi_feature"],
                                  filters=[("sample_token", "==", sample_token)])
-        where = pc.index_in(pa.array(detection_ids.tolist(), pa.string()), value_set=table["detection_id"].combine_chunks())
+        where = pc.index_in(pa.array(detection_ids.tolist(), pa.string()),
+                            value_set=table["detection_id"].combine_chunks())
         features = table["roi_feature"].take(where)
         shape = roi_feature_shape(detections_path)
         return embed(self.encoder, decode_roi_features(features, shape, detections_path))
@@ -406,7 +407,8 @@ def _rows(records: SceneRecords, position: int, kind: str, inputs: SampleInputs,
     count = len(first)
     ids = inputs.detection_id
     missing = [None] * count
-    correct = None if second is None else (inputs.instance[first] == inputs.instance[second]) & (inputs.instance[first] != "")
+    correct = (None if second is None
+               else (inputs.instance[first] == inputs.instance[second]) & (inputs.instance[first] != ""))
     valid = np.isfinite(boxes.yaw)
     return pa.table({
         "scene_token": [records.scene_token] * count,

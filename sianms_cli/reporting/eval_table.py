@@ -136,10 +136,12 @@ def table_markdown(table: Mapping[str, Any]) -> str:
                   "| method | " + " | ".join(pair_label(p) for p in pairs) + " |",
                   "|---|" + "---|" * len(pairs)]
         for m in methods:
-            lines.append(f"| {m} | " + " | ".join(format_cell(table["regions"][p][m][name]["AP"], "AP") for p in pairs) + " |")
+            cells = " | ".join(format_cell(table["regions"][p][m][name]["AP"], "AP") for p in pairs)
+            lines.append(f"| {m} | {cells} |")
     if table["reidentification"]:
         lines += ["", "Re-identification against ground-truth identity (pairs to find: the oracle's):", "",
-                  "| matcher | matched | correct | to find | precision | recall | F1 | " + " | ".join(REID_WRONG_COLUMNS) + " |",
+                  "| matcher | matched | correct | to find | precision | recall | F1 | "
+                  + " | ".join(REID_WRONG_COLUMNS) + " |",
                   "|---|" + "---|" * (6 + len(REID_WRONG_COLUMNS))]
         for matcher, f in table["reidentification"].items():
             lines.append(f"| {matcher} | {f['pairs_matched']} | {f['pairs_correct']} | {f['pairs_true']} | "

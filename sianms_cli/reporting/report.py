@@ -370,7 +370,8 @@ def strict_json(value: Any) -> Any:
 
 def config_differences(now: Mapping[str, Any], baseline: Mapping[str, Any]) -> list[str]:
     """The comparable config fields (and ``metrics``) whose values differ."""
-    return [name for name in COMPARABLE_FIELDS + ("metrics",) if now["config"].get(name) != baseline["config"].get(name)]
+    return [name for name in COMPARABLE_FIELDS + ("metrics",)
+            if now["config"].get(name) != baseline["config"].get(name)]
 
 
 def judge(baseline: float | None, now: float | None, allowance: float, higher_is_better: bool) -> str | None:
@@ -568,7 +569,8 @@ def regression_lines(regressions: list[Mapping[str, Any]]) -> list[str]:
 # --------------------------------------------------------------------------- figures
 
 
-def draw_figures(folder: Path, summary: Mapping[str, Any], eval_folder: Path, out: Path) -> tuple[list[Figure], list[str]]:
+def draw_figures(folder: Path, summary: Mapping[str, Any], eval_folder: Path,
+                 out: Path) -> tuple[list[Figure], list[str]]:
     """``pr_curves.png`` and ``tp_curves.png`` in ``folder`` from the evaluation's metrics_details files,
     and the evaluation's bird's-eye pictures; a note where something could not be drawn."""
     from sianms_cli.evaluation.evaluate import detail_key, read_details
@@ -593,7 +595,7 @@ def draw_figures(folder: Path, summary: Mapping[str, Any], eval_folder: Path, ou
             curves[method] = {region: details[region][key] for region in regions}
         draw_pr_curves(folder / PR_CURVES_FILE, curves, name, regions)
         draw_tp_curves(folder / TP_CURVES_FILE, curves, name, regions, cfg["min_recall"])
-        figures += [Figure(f"Precision against recall, {name} at {cfg['dist_th_tp']} m, per method", 
+        figures += [Figure(f"Precision against recall, {name} at {cfg['dist_th_tp']} m, per method",
                            folder / PR_CURVES_FILE, PR_CURVES_FILE),
                     Figure(f"TP errors against recall, {name} at {cfg['dist_th_tp']} m (the reported error is the "
                            f"mean right of recall {cfg['min_recall']})", folder / TP_CURVES_FILE, TP_CURVES_FILE)]

@@ -235,7 +235,8 @@ def paired_differences(runs: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]
 def reidentification(runs: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
     """Each matcher every run evaluated: precision, recall and F1 over the runs, true pairs per run."""
     evaluated = [m for m in runs[0]["reidentification"] if all(m in run["reidentification"] for run in runs)]
-    matchers = sorted(evaluated, key=lambda m: runs[0]["methods"].index(m) if m in runs[0]["methods"] else len(evaluated))
+    matchers = sorted(evaluated,
+                      key=lambda m: runs[0]["methods"].index(m) if m in runs[0]["methods"] else len(evaluated))
     return {matcher: {**{name: spread([run["reidentification"][matcher].get(name) for run in runs])
                          for name in REID_FIGURES},
                       "pairs_true": [run["reidentification"][matcher].get("pairs_true") for run in runs]}

@@ -653,7 +653,8 @@ class _Sky:
     sun_glow: strength of the brightening around the sun (0 when it is hidden); cover in
     [0, 1]: the share of the sky under cloud; cloud_light, cloud_dark (3,) float32: the
     radiance of thin and thick cloud; texture: the cloud noise (`_cloud_texture`) and
-    threshold: its value above which there is cloud; below (3,) float32: what a ray below the horizon sees (distant ground).
+    threshold: its value above which there is cloud; below (3,) float32: what a ray below the
+    horizon sees (distant ground).
     """
 
     sun: np.ndarray
@@ -745,7 +746,8 @@ class _Glints:
         for (x, y, z), colour in zip(cam.T, self.radiance.T):
             if z <= NEAR:
                 continue
-            u, v = view.intrinsic[0, 0] * x / z + view.intrinsic[0, 2], view.intrinsic[1, 1] * y / z + view.intrinsic[1, 2]
+            u = view.intrinsic[0, 0] * x / z + view.intrinsic[0, 2]
+            v = view.intrinsic[1, 1] * y / z + view.intrinsic[1, 2]
             u0, u1 = max(int(u - 3 * spread), 0), min(int(u + 3 * spread) + 1, view.width)
             v0, v1 = max(int(v - 12 * spread), 0), min(int(v + 12 * spread) + 1, view.height)
             if u0 >= u1 or v0 >= v1:
@@ -1072,7 +1074,8 @@ def _surface(table: _PartTable, hits: _Hits, looks: _Looks):
 
     idx = np.flatnonzero(material == shapes.BARRIER_STRIPES)
     if len(idx):
-        white = np.floor((np.take(hits.local[1], idx) + np.take(hits.half[1], idx)) / _F32(0.5)).astype(np.int64) % 2 == 1
+        band = np.floor((np.take(hits.local[1], idx) + np.take(hits.half[1], idx)) / _F32(0.5)).astype(np.int64)
+        white = band % 2 == 1
         _put(albedo, idx, np.where(white, _F32(0.8), _take(albedo, idx)))
 
     gloss[glass] = 1.0

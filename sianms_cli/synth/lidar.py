@@ -578,8 +578,8 @@ def scan_lidar(parts: Parts, lidar_to_world, rng: np.random.Generator, ground_re
     # Parts beyond the ray's ground hit are never tested.
     ray, part = candidate_pairs(parts, reference[:3, 3], level, inflate, start_azimuth, azimuth_steps,
                                 az_margin, el_margin, reach, t_max)
-    t_part, part_hit, normal = _nearest_hits(ray, part, origins, dirs,
-                                             dataclasses.replace(parts, center=center), t_max.astype(np.float32), motion)
+    t_part, part_hit, normal = _nearest_hits(ray, part, origins, dirs, dataclasses.replace(parts, center=center),
+                                             t_max.astype(np.float32), motion)
     on_part = t_part < t_ground
     t = np.where(on_part, t_part, t_ground)
     hit = np.isfinite(t) & (t >= min_range)

@@ -375,8 +375,8 @@ def _construction(b: Builder, w: float, l: float, h: float, app: Appearance) -> 
     if variant == 0:
         track_top = z0 + 0.28 * h
         for side in (1.0, -1.0):
-            b.add((-0.45 * l, min(side * w / 2, side * (w / 2 - 0.6)), z0), (0.12 * l, max(side * w / 2, side * (w / 2 - 0.6)),
-                  track_top), TRIM)
+            b.add((-0.45 * l, min(side * w / 2, side * (w / 2 - 0.6)), z0),
+                  (0.12 * l, max(side * w / 2, side * (w / 2 - 0.6)), track_top), TRIM)
         house_lo, house_hi = track_top + 0.12, z0 + 0.62 * h
         b.add((-0.5 * l, -w / 2 + 0.05, house_lo), (0.02 * l, w / 2 - 0.05, house_hi), PAINT, app.base)
         b.add((-0.5 * l, -w / 2 + 0.05, house_lo), (-0.4 * l, w / 2 - 0.05, house_hi + 0.1), PAINT2, dark)

@@ -690,7 +690,8 @@ def _place_parked_vehicles(agents: AgentList, rng, street: Street, busyness: flo
                 direction = with_flow if rng.random() < 0.9 else -with_flow
                 # Pulled in to the kerb, so wide vans and trucks stay clear of the bike lane.
                 offset = side * (section.kerb - size[0] / 2 - float(rng.uniform(0.1, 0.3)))
-                agents.add(category, size, p0=position, offset=offset, direction=direction, yaw_offset=float(rng.normal(0.0, 0.03)), parked=True)
+                agents.add(category, size, p0=position, offset=offset, direction=direction,
+                           yaw_offset=float(rng.normal(0.0, 0.03)), parked=True)
             position += size[1] / 2 + KERB_GAP[0] + float(rng.exponential(KERB_GAP[1]))
 
 
@@ -1145,7 +1146,8 @@ def _place_roadworks_site(agents: AgentList, rng, street: Street, ego: EgoDrive,
 def _car_park_depth(street: Street, side: int, center_s: float, frontage: float) -> float:
     """Depth of the car parks beside a building's frontage: the building stands behind them."""
     depths = [park.depth for park in street.car_parks
-              if park.side == side and park.s0 - 2.0 < center_s + frontage / 2 and center_s - frontage / 2 < park.s1 + 2.0]
+              if park.side == side
+              and park.s0 - 2.0 < center_s + frontage / 2 and center_s - frontage / 2 < park.s1 + 2.0]
     return max(depths, default=0.0)
 
 

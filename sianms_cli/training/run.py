@@ -128,9 +128,9 @@ def leave_process_group() -> None:
     A DistributedDataParallel wrapper can sit in a reference cycle (it did in a fresh process), so
     it and the group it holds outlive their training until the cyclic collector runs. Left to
     interpreter shutdown, a gloo worker thread still finishing a work then needs the GIL to drop
-    the work's Python state, and the rank aborts ("terminate called without an active exception", seen under gdb). A minimal
-    two-rank script that trains twice and exits aborted in 3 of 45 runs with the group destroyed
-    alone and in 0 of 90 with the collector run first.
+    the work's Python state, and the rank aborts ("terminate called without an active exception",
+    seen under gdb). A minimal two-rank script that trains twice and exits aborted in 3 of 45 runs
+    with the group destroyed alone and in 0 of 90 with the collector run first.
     """
     import torch.distributed as dist
 
