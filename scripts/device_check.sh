@@ -69,9 +69,9 @@ check facts 60 bash -c 'nvidia-smi --query-gpu=name,memory.total,driver_version 
     python3 -c "import torch; print(\"torch\", torch.__version__, \"bf16\", torch.cuda.is_bf16_supported())"'
 check cuda-tests 180 env PYTEST_DISABLE_PLUGIN_AUTOLOAD=1 python3 -m pytest -q -p no:cacheprovider -m cuda tests/training/test_cuda.py
 check fpointnet-steps 120 python3 bench/train_fpointnet.py --device cuda --points 1024,256 \
-    --precisions fp32,bf16,fp16 --steps 50
+    --paths native:fp32,native:bf16,native:fp16 --steps 50
 check fpointnet-batches 120 bash -c 'for batch in 256 1024; do
-    python3 bench/train_fpointnet.py --device cuda --points 1024 --batch $batch --precisions fp32,bf16 --steps 20; done'
+    python3 bench/train_fpointnet.py --device cuda --points 1024 --batch $batch --paths native:fp32,native:bf16 --steps 20; done'
 check siamese-epochs 240 python3 bench/train.py --device cuda --precisions fp32,bf16 --scenes 2 --epochs 3 \
     --keep "$work/train"
 export -f sianms nccl_pair fpointnet_epochs  # timeout runs commands, not functions: bash -c runs them

@@ -15,8 +15,9 @@ from sianms_cli.cli._app import ProgressBar, command, use_torch_threads
 def demo_cli(
     out: Path = typer.Option(Path("sianms-demo"), help="Demo folder (a rerun resumes the stages not yet done)."),
     quick: bool = typer.Option(False, "--quick",
-                               help="The quick profile, for CI: 2 scenes, 4 siamese and 4 F-PointNets epochs of "
-                                    "batch 8, 128 points per frustum (times: docs/performance.md)."),
+                               help="The quick profile, for CI: 2 scenes, 4 siamese epochs (with --train-fpointnet "
+                                    "4 F-PointNets epochs of batch 8, 128 points per frustum; times: "
+                                    "docs/performance.md)."),
     seed: Optional[int] = typer.Option(None, help="Seed of the world, the 2-D detector, the trainings and eval "
                                                   "[default: 0; 1 with --quick, whose one validation scene of "
                                                   "seed 0 holds a single car]."),

@@ -25,8 +25,8 @@ OUT = typer.Option(..., help="Run folder: checkpoint.pt, config.json, metrics.cs
 SEED = typer.Option(0, help="Seed of every random source (same seed, same weights on a CPU).")
 DEVICE = typer.Option("auto", help="auto (CUDA, then CPU), cpu, cuda or cuda:N.")
 PRECISION = typer.Option("auto", help="Training forward passes in fp32, bf16 or fp16 (CUDA only, loss-scaled); "
-                                       "auto: bf16 on GPUs that have it, else fp16; fp32 on a CPU. Validation "
-                                       "runs in fp32.")
+                                       "auto: bf16 on GPUs that have it, else fp16; on a CPU bf16 where it "
+                                       "computes it natively, else fp32. Validation runs in fp32.")
 THREADS = typer.Option(None, min=1, help="CPU threads for torch [default: torch's choice].")
 STREAMS = typer.Option(None, help="Training data streams, each reading its own shards; under torchrun each process "
                                   "runs streams/processes of them. One process with --streams K trains what K "
