@@ -44,7 +44,8 @@ def regressions(now, baseline):
 
 def test_the_expected_report_is_a_quick_demo_of_the_paper_methods(expected):
     assert expected["config"]["split"] == "mini_val"
-    assert {"vanilla", "axis-nms", "rotated-nms", "circle-nms", "sianms", "hybrid", "oracle"} <= set(expected["methods"])
+    methods = {"vanilla", "axis-nms", "rotated-nms", "circle-nms", "sianms", "hybrid", "oracle"}
+    assert methods <= set(expected["methods"])
     cell = expected["regions"]["overlap"]["sianms"][expected["table_class"]]
     assert cell["gt"] > 0 and cell["AP"] is not None
     assert regressions(expected, expected) == []

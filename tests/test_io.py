@@ -236,7 +236,8 @@ def test_exclusive_lock_refuses_a_second_holder_and_names_the_first(tmp_path):
     with io.exclusive_lock(lock, what="the cache"):
         held = io.try_lock(lock)
         assert held is None
-        with pytest.raises(io.FolderBusyError, match=rf"the cache is in use by another sianms process \(pid {os.getpid()}\)"):
+        with pytest.raises(io.FolderBusyError,
+                           match=rf"the cache is in use by another sianms process \(pid {os.getpid()}\)"):
             with io.exclusive_lock(lock, what="the cache"):
                 pass
     descriptor = io.try_lock(lock)

@@ -272,8 +272,8 @@ def test_external_detections_file(config, dataroot, tmp_path):
     for row, box in enumerate(beyond):
         boxes = [dict(zip(("x1", "y1", "x2", "y2"), (10, 20, 60, 70))), dict(zip(("x1", "y1", "x2", "y2"), box))]
         path.write_text(json.dumps([{"sample_data_token": front, **b, "score": 0.5, "class": "car"} for b in boxes]))
-        with pytest.raises(DataFormatError, match=rf"^{path}: record {front}: field 'x1/y1/x2/y2': row 1: box lies wholly "
-                                                  "outside its image"):
+        with pytest.raises(DataFormatError, match=rf"^{path}: record {front}: field 'x1/y1/x2/y2': row 1: "
+                                                  "box lies wholly outside its image"):
             prepare(PrepareConfig(config.dataroot, config.version, "mini_train", detector=f"file:{path}"),
                     tmp_path / f"beyond{row}")
     path.write_text(json.dumps([{"sample_data_token": front, "x1": -5.0, "y1": -5.0, "x2": width + 5.0,

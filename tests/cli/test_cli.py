@@ -38,7 +38,8 @@ def test_a_flag_the_parser_refuses_is_one_error_line():
     bad_type = sianms("synth", "--seed", "abc")
     assert bad_type.returncode == 2 and bad_type.stdout == ""
     [line] = bad_type.stderr.splitlines()  # the parser's own wording between these two ends
-    assert line.startswith("error: sianms synth: Invalid value for '--seed': ") and line.endswith("(see 'sianms synth -h')")
+    assert line.startswith("error: sianms synth: Invalid value for '--seed': ")
+    assert line.endswith("(see 'sianms synth -h')")
     out_of_range = sianms("train", "siamese", "--cache", "c", "--out", "r", "--threads", "0")
     assert out_of_range.returncode == 2 and len(out_of_range.stderr.splitlines()) == 1
     assert out_of_range.stderr.startswith("error: sianms train siamese: Invalid value for '--threads'")

@@ -191,7 +191,8 @@ def test_a_number_that_is_not_finite_names_its_file_record_and_field(tmp_path, f
     """A NaN in a cache a user edited or damaged: one error at the read, not a NaN loss (or a NaN
     box blamed on another file) later. A frustum without a box (nulls) is fine."""
     rng = np.random.default_rng(1)
-    rows = [frustum_row(rng, "ok", "car", (2.0, 5.0, 1.5), 30), frustum_row(rng, "nobox", "car", (2.0, 5.0, 1.5), 30, box=False),
+    rows = [frustum_row(rng, "ok", "car", (2.0, 5.0, 1.5), 30),
+            frustum_row(rng, "nobox", "car", (2.0, 5.0, 1.5), 30, box=False),
             frustum_row(rng, "bad", "car", (2.0, 5.0, 1.5), 30)]
     bad = rows[2][0]
     if isinstance(bad[field], (list, np.ndarray)):

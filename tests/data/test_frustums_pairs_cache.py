@@ -171,7 +171,8 @@ def test_schema_round_trip_and_atomic_shards(tmp_path):
     assert schemas["pairs"].equals(with_metadata(PAIRS_SCHEMA, "pairs"), check_metadata=True)
     feature = np.arange(4, dtype="<f2").reshape(1, 2, 2)
     row = {name: None for name in schemas["detections"].names}
-    row.update(detection_id="d", x1=1.5, score=0.5, overlap_pairs=["A|B"], roi_feature=feature.tobytes(), detection_index=0)
+    row.update(detection_id="d", x1=1.5, score=0.5, overlap_pairs=["A|B"], roi_feature=feature.tobytes(),
+               detection_index=0)
     table = pa.Table.from_pylist([row], schema=schemas["detections"])
     with ShardWriter(tmp_path, "s", schemas) as writer:
         writer.write("detections", table)

@@ -182,7 +182,8 @@ def test_a_pairs_row_naming_an_unknown_detection_is_a_clear_error(tmp_path):
     pq.write_table(table.set_column(table.schema.get_field_index("positive_detection_id"), "positive_detection_id",
                                     ids), cache / "pairs" / "scene-a.parquet")
     record_again(cache)
-    with pytest.raises(DataFormatError, match="pairs/scene-a.parquet: field 'positive_detection_id': a pairs row names"):
+    with pytest.raises(DataFormatError,
+                       match="pairs/scene-a.parquet: field 'positive_detection_id': a pairs row names"):
         list(data.iter_scenes(cache))
 
 

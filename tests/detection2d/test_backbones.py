@@ -40,7 +40,8 @@ def test_resnet50_c4_key_layout_and_checkpoint_round_trip(tmp_path):
     path = tmp_path / "detector.pth"
     torch.save(checkpoint, path)
     loaded = ResNet50C4.from_checkpoint(path, min_size=64, max_size=128)
-    assert torch.equal(loaded.state_dict()["layer2.3.bn3.running_mean"], checkpoint["backbone.body.layer2.3.bn3.running_mean"])
+    assert torch.equal(loaded.state_dict()["layer2.3.bn3.running_mean"],
+                       checkpoint["backbone.body.layer2.3.bn3.running_mean"])
     features, _ = loaded.features(np.zeros((45, 80, 3), dtype=np.uint8))
     assert features.shape == (1, 1024, 4, 8)  # 128 x 72 padded to 128 x 96, / 16
 

@@ -9,7 +9,8 @@ from sianms_cli.errors import SianmsError
 
 def ramp(height=4, width=5):
     """f[y, x] = 10 y + x: bilinear interpolation of it is exact, so values are easy by hand."""
-    y, x = torch.meshgrid(torch.arange(height, dtype=torch.float64), torch.arange(width, dtype=torch.float64), indexing="ij")
+    y, x = torch.meshgrid(torch.arange(height, dtype=torch.float64), torch.arange(width, dtype=torch.float64),
+                          indexing="ij")
     return (10 * y + x)[None, None]
 
 

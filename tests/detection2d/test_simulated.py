@@ -61,7 +61,8 @@ def test_jitter_grows_with_truncation_and_distance():
 def test_scores_follow_visibility():
     config = SimulatedDetectorConfig(score_threshold=0.0)
     visible = [simulate_detections(ground_truth(10), SIZE, np.random.default_rng(i), config) for i in range(30)]
-    hidden = [simulate_detections(ground_truth(10, occlusion=0.5), SIZE, np.random.default_rng(i), config) for i in range(30)]
+    hidden = [simulate_detections(ground_truth(10, occlusion=0.5), SIZE, np.random.default_rng(i), config)
+              for i in range(30)]
     def tp_scores(runs, gt):
         out = []
         for det in runs:

@@ -56,7 +56,8 @@ def accumulate_reference(gt: np.ndarray, pred: np.ndarray, class_name: str, dist
             inter = np.prod(smallest)
             match["scale_err"].append(1 - inter / (np.prod(g["size"]) + np.prod(p["size"]) - inter))
             period = np.pi if class_name == "barrier" else 2 * np.pi
-            match["orient_err"].append(abs(_angle_diff(float(quat_yaw(g["rotation"])), float(quat_yaw(p["rotation"])), period)))
+            match["orient_err"].append(abs(_angle_diff(float(quat_yaw(g["rotation"])), float(quat_yaw(p["rotation"])),
+                                                       period)))
             acc = np.nan if g["attribute"] == NO_ATTRIBUTE else float(g["attribute"] == p["attribute"])
             match["attr_err"].append(1 - acc)
             match["conf"].append(float(p["score"]))

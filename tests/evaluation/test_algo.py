@@ -226,7 +226,8 @@ def test_calc_ap_and_calc_tp_argument_checks():
 def _mock_results(py: random.Random, legacy: np.random.RandomState, name: str):
     """The devkit's TestAlgo._mock_results(30, 3, 25, name), draw for draw."""
     rel = {"pedestrian": ["pedestrian.moving", "pedestrian.sitting_lying_down", "pedestrian.standing"],
-           "bicycle": ["cycle.with_rider", "cycle.without_rider"], "motorcycle": ["cycle.with_rider", "cycle.without_rider"],
+           "bicycle": ["cycle.with_rider", "cycle.without_rider"],
+           "motorcycle": ["cycle.with_rider", "cycle.without_rider"],
            "traffic_cone": [], "barrier": []}.get(name, ["vehicle.moving", "vehicle.parked", "vehicle.stopped"])
 
     def boxes(per_sample: int, scale: float):

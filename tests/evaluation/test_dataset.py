@@ -113,7 +113,8 @@ def test_ego_poses_are_those_of_the_lidar_key_frames(reference_db):
     split = eval_split(reference_db, "mini_val")
     rotation, translation = ego_poses(reference_db, split)
     for i, token in enumerate(split.sample_tokens):
-        expected_rotation, expected_translation = reference_db.ego_pose_of(reference_db.keyframe_data(token)["LIDAR_TOP"])
+        lidar_token = reference_db.keyframe_data(token)["LIDAR_TOP"]
+        expected_rotation, expected_translation = reference_db.ego_pose_of(lidar_token)
         assert np.array_equal(rotation[i], expected_rotation) and np.array_equal(translation[i], expected_translation)
 
 

@@ -116,7 +116,8 @@ def test_a_wrong_guess_of_the_middle_boundary_is_caught(tmp_path, small_chunks):
 @pytest.mark.parametrize("change", [
     lambda text: text.replace('"velocity": [0.5, -0.25]', '"velocity": [NaN, -0.25]', 1),
     lambda text: text.replace('"detection_score"', '"num_pts": 3, "detection_score"', 1),
-    lambda text: text.replace('"attribute_name": "vehicle.moving"', '"attribute_name": "vehicle.moving", "size": [1, 1, 1]', 1),
+    lambda text: text.replace('"attribute_name": "vehicle.moving"',
+                              '"attribute_name": "vehicle.moving", "size": [1, 1, 1]', 1),
     lambda text: text.replace('"sample_b"', '"sample\\u005fb"'),
     lambda text: text.replace('"sample_b"', '"sample_\u00e9"'),
     lambda text: "\ufeff" + text,

@@ -238,7 +238,8 @@ def test_missing_token_names_the_position(tiny_dataroot, rewrite_table):
     ("sample", 2, "timestamp", 1532402928647951.0, "expected an integer, got 1532402928647951.0 (float)"),
     ("sample_annotation", 4, "translation", [1.0, 2.0], "expected a list of 3 finite numbers, got [1.0, 2.0] (list)"),
     ("sample_annotation", 1, "size", "big", "expected a list of 3 finite numbers, got 'big' (str)"),
-    ("sample_annotation", 2, "rotation", [1, 0, False, 0], "expected a list of 4 finite numbers, got [1, 0, False, 0] (list)"),
+    ("sample_annotation", 2, "rotation", [1, 0, False, 0],
+     "expected a list of 4 finite numbers, got [1, 0, False, 0] (list)"),
     ("sample_annotation", 0, "num_radar_pts", True, "expected an integer, got True (bool)"),
     ("sample_annotation", 3, "attribute_tokens", "abc", "expected a list of attribute tokens, got 'abc' (str)"),
     ("sample_annotation", 5, "visibility_token", None, "expected a visibility token or \"\", got None (NoneType)"),
@@ -249,7 +250,9 @@ def test_missing_token_names_the_position(tiny_dataroot, rewrite_table):
     ("sample", 1, "prev", "a\x00", "expected a sample token or \"\", got 'a\\x00' (str)"),
     ("sample_data", 5, "sample_token", "", "expected a sample token, got '' (str)"),
     ("ego_pose", 1, "timestamp", 2**63, "expected an integer, got 9223372036854775808 (int)"),
-    ("calibrated_sensor", 0, "camera_intrinsic", [[1, 0], [0, 1]], "expected [] or a 3x3 pinhole matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]] of finite numbers, fx and fy > 0, got [[1, 0], [0, 1]] (list)"),
+    ("calibrated_sensor", 0, "camera_intrinsic", [[1, 0], [0, 1]],
+     "expected [] or a 3x3 pinhole matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]] of finite numbers, fx and fy > 0, "
+     "got [[1, 0], [0, 1]] (list)"),
     ("map", 0, "log_tokens", [""], "expected a list of log tokens, got [''] (list)"),
 ])
 def test_wrong_field_types(tiny_dataroot, rewrite_table, tiny_records, table, row, field, value,

@@ -112,7 +112,8 @@ def test_check_value_accepts(field, value):
     (INTRINSIC, [[0, 0, 0], [0, 0, 0], [0, 0, 1]], "expected [] or a 3x3 pinhole matrix [[fx, s, cx], [0, fy, cy], "
                                                    "[0, 0, 1]] of finite numbers, fx and fy > 0, got [[0, 0, 0], "
                                                    "[0, 0, 0], [0, 0, 1]] (list)"),
-    (INTRINSIC, [[1, 0], [0, 1]], "expected [] or a 3x3 pinhole matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]] of finite numbers, fx and fy > 0, got [[1, 0], [0, 1]] (list)"),
+    (INTRINSIC, [[1, 0], [0, 1]], "expected [] or a 3x3 pinhole matrix [[fx, s, cx], [0, fy, cy], "
+                                  "[0, 0, 1]] of finite numbers, fx and fy > 0, got [[1, 0], [0, 1]] (list)"),
     (ref("sample"), "", "expected a sample token, got '' (str)"),
     (optional_ref("sample"), None, "expected a sample token or \"\", got None (NoneType)"),
     (ref_list("attribute"), "abc", "expected a list of attribute tokens, got 'abc' (str)"),

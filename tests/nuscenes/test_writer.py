@@ -98,7 +98,8 @@ def test_same_records_give_byte_identical_files(tmp_path, tiny_records, write_da
 def test_tables_stay_partial_until_close(tmp_path):
     writer = DatasetWriter(tmp_path, VERSION)
     writer.add("log", LOG)
-    assert [p.name.startswith(".log.json.") and p.suffix == ".partial" for p in (tmp_path / VERSION).iterdir()] == [True]
+    assert [p.name.startswith(".log.json.") and p.suffix == ".partial"
+            for p in (tmp_path / VERSION).iterdir()] == [True]
     assert not (tmp_path / VERSION / "log.json").exists()
     assert writer.count("log") == 1 and writer.count("scene") == 0
     writer.close()

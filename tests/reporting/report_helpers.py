@@ -23,7 +23,8 @@ METHODS = ("vanilla", "axis-nms", "sianms", "oracle")
 CLASSES = ("car", "pedestrian", "bicycle")
 PAIR = "overlap:CAM_FRONT|CAM_FRONT_RIGHT"
 REGIONS = ("all", "overlap", PAIR)
-PNG = base64.b64decode("iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAYAAAAfFcSJAAAADUlEQVR42mNkYPhfDwAChwGA60e6kgAAAABJRU5ErkJggg==")
+PNG = base64.b64decode("iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAYAAAAfFcSJAAAADUlEQVR42mNkYPhfDwAChwGA60e6kgAAAABJRU5E"
+                       "rkJggg==")
 CONFIG = {"split": "mini_val", "split_scenes": ["scene-0103", "scene-0916"], "dataset_sha256": "d" * 64,
           "methods": list(METHODS), "nms_sweep": None, "axis_mode": "ignore-yaw", "sianms_classes": ["car"],
           "max_distance": 50.0, "seed": 0, "pictures": 1, "version": "v1.0-mini", "dis_thr": 0.8,

@@ -47,7 +47,8 @@ def test_cells_are_mean_and_sample_spread_with_each_runs_best(runs, tmp_path):
     sianms = content["cells"]["overlap"]["sianms"]["AP"]
     expected = [cell(3, 1, "car")["AP"] + shift for shift in SIANMS_AP_SHIFT]
     assert sianms["values"] == pytest.approx(expected)
-    assert sianms["mean"] == pytest.approx(np.mean(expected)) and sianms["sd"] == pytest.approx(np.std(expected, ddof=1))
+    assert sianms["mean"] == pytest.approx(np.mean(expected))
+    assert sianms["sd"] == pytest.approx(np.std(expected, ddof=1))
     assert sianms["n"] == 3
     best = content["cells"]["all"]["axis-nms (best)"]["AP"]["values"]  # axis-nms is method 1, axis-nms@0.1 method 2
     assert best == pytest.approx([cell(1, 0, "car")["AP"], cell(2, 0, "car")["AP"], cell(1, 0, "car")["AP"]])

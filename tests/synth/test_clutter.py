@@ -91,7 +91,8 @@ def test_no_clutter_part_touches_a_road_user_over_the_scene(scenes):
                 near = np.hypot(*(parts.center[:, :2] - box[:2]).T) < reach + np.hypot(box[3], box[4])
                 near &= (bottom < box[5]) & (top > 0.0)
                 for m in np.flatnonzero(near):
-                    assert not _inside_box(points[m], box).any(), (plan.agents.category, t, clutter.kind[clutter.item[m]])
+                    assert not _inside_box(points[m], box).any(), (plan.agents.category, t,
+                                                                   clutter.kind[clutter.item[m]])
 
 
 def test_buildings_are_not_entered(scenes):

@@ -128,7 +128,8 @@ def test_same_seed_same_bytes_and_workers_do_not_matter(tmp_path, tiny_dataroot,
 
 def test_other_seed_other_world(tmp_path, tiny_dataroot, make_tiny):
     other = make_tiny(tmp_path / "other", seed=4)
-    assert _digest(other)["v1.0-mini/sample_annotation.json"] != _digest(tiny_dataroot)["v1.0-mini/sample_annotation.json"]
+    annotation_file = "v1.0-mini/sample_annotation.json"
+    assert _digest(other)[annotation_file] != _digest(tiny_dataroot)[annotation_file]
 
 
 def test_sensors_none_writes_the_same_annotations(tmp_path, make_tiny, tiny_dataroot):

@@ -69,7 +69,7 @@ def test_every_place_type_appears_in_the_seeded_scenes(seeded):
     angles = {round(float(np.degrees(c.angle))) for p in seeded for c in p.street.car_parks}
     assert angles == {90, 60, 45}
     assert {c.rows for p in seeded for c in p.street.car_parks} == {1, 2, 3}
-    assert sum(p.roadworks for p in seeded) == 15  # of 0.75 x 0.65 = 49 %: those without room between junctions drop out
+    assert sum(p.roadworks for p in seeded) == 15  # of 0.75 x 0.65 = 49 %, less those without room between junctions
     assert sum(_roadworks_sides(p) == 2 for p in seeded) >= 2  # both parking lanes closed
     assert sum(_parked(p, "vehicle.construction").any() for p in seeded) >= 10  # at sites and at the kerb
     assert sum(_parked(p, "vehicle.trailer").any() for p in seeded) >= 15
@@ -121,7 +121,8 @@ def _through_crossing(plan) -> np.ndarray:
 
 
 def test_the_varied_plans_cover_every_place(plans):
-    assert {tuple(i.arms for i in p.street.intersections if not i.through) for p in plans} >= {(), ((-1,),), ((-1,), (1,))}
+    turns = {tuple(i.arms for i in p.street.intersections if not i.through) for p in plans}
+    assert turns >= {(), ((-1,),), ((-1,), (1,))}
     assert any(p.street.section.median > 0 for p in plans)
     assert any(_turning_in(p).any() for p in plans) and any(_turning_off(p).any() for p in plans)
     assert any(_through_crossing(p).any() for p in plans)

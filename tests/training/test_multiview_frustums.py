@@ -129,7 +129,8 @@ def test_multiview_adds_exactly_the_overlapping_pairs(inputs, db, tmp_path):
     # and the training stream carries them beside the single frustums, flagged
     batches = list(iterate_batches(cache, ALL, 4, np.random.default_rng(0), train=False, unions=folder))
     flags = np.concatenate([batch["union"] for batch in batches])
-    assert flags.sum() == len(expected) and (~flags).sum() == len(read_shard(cache / "frustums" / f"{shard}.parquet", ALL))
+    assert flags.sum() == len(expected)
+    assert (~flags).sum() == len(read_shard(cache / "frustums" / f"{shard}.parquet", ALL))
 
 
 def test_union_files_are_reused_and_rebuilt_when_their_inputs_change(inputs, tmp_path):

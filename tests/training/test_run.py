@@ -60,7 +60,8 @@ def test_checkpoint_round_trip(tmp_path):
 def test_a_pickled_object_is_refused(tmp_path):
     path = tmp_path / "evil.pt"
     torch.save({"format": "sianms-checkpoint-1", "model": {}, "payload": ValueError("x")}, path)
-    with pytest.raises(DataFormatError, match="evil.pt: not a sianms checkpoint .weights-only load refused it") as error:
+    with pytest.raises(DataFormatError,
+                       match="evil.pt: not a sianms checkpoint .weights-only load refused it") as error:
         load_checkpoint(path)
     assert "Unsupported global" in str(error.value) and "weights_only" not in str(error.value)  # no advice to unpickle
     good = save_checkpoint(tmp_path / CHECKPOINT, small_checkpoint()[1]).read_bytes()

@@ -1,4 +1,5 @@
-"""The inference API eval calls: `load_encoder` (checkpoint -> encoder, dis_thr) and `embed` (ROI features -> embeddings)."""
+"""The inference API eval calls: `load_encoder` (checkpoint -> encoder, dis_thr) and `embed`
+(ROI features -> embeddings)."""
 
 import json
 
