@@ -68,7 +68,8 @@ SIZE_OF = {
     "bicycle": (0.60, 1.70, 1.28), "traffic_cone": (0.41, 0.41, 1.07), "barrier": (2.53, 0.50, 0.98),
 }
 ATTRIBUTES_OF = {
-    "pedestrian": ("pedestrian.moving", "pedestrian.standing"), "motorcycle": ("cycle.with_rider", "cycle.without_rider"),
+    "pedestrian": ("pedestrian.moving", "pedestrian.standing"),
+    "motorcycle": ("cycle.with_rider", "cycle.without_rider"),
     "bicycle": ("cycle.with_rider", "cycle.without_rider"), "traffic_cone": (), "barrier": (),
 }
 SENSOR_TOKEN = {sensor.channel: sensor.token for sensor in SENSORS}
@@ -121,7 +122,8 @@ def _write_scene(writer, rng, name, scene_index, count, calibrations) -> None:
     for k, token in enumerate(samples):
         time_us = t0 + k * SAMPLE_PERIOD_US
         writer.add("sample", {"token": token, "timestamp": time_us, "prev": samples[k - 1] if k else "",
-                              "next": samples[k + 1] if k + 1 < count else "", "scene_token": make_token("scene", name)})
+                              "next": samples[k + 1] if k + 1 < count else "",
+                              "scene_token": make_token("scene", name)})
         pose = make_token("ego_pose", name, k)
         writer.add("ego_pose", {"token": pose, "timestamp": time_us, "rotation": ego_rotation,
                                 "translation": [float(ego_xy[k, 0]), float(ego_xy[k, 1]), 0.0]})
@@ -362,20 +364,21 @@ def main(argv: list[str] | None = None) -> int:
     print(f"workload: {sum(samples_per_scene(args.scenes))} samples, {gt['loaded']} GT and {pred['loaded']} "
           f"predictions ({gt['kept']} and {pred['kept']} after the filters), results file "
           f"{results.stat().st_size / 2**20:.0f} MiB")
-    print(f"ours:   tables {t['tables']:.1f} s | read_results {t['read_results']:.1f} s | evaluate {t['evaluate']:.2f} s "
-          f"(matching + metrics {t['matching_and_metrics']:.2f} s)")
+    print(f"ours:   tables {t['tables']:.1f} s | read_results {t['read_results']:.1f} s | "
+          f"evaluate {t['evaluate']:.2f} s (matching + metrics {t['matching_and_metrics']:.2f} s)")
     print(f"ours memory: peak RSS {ours['peak_metrics_mib']:.0f} MiB during read_results + evaluate, of which "
           f"{ours['tables_mib']:.0f} MiB are the loaded tables; the table loader's own transient peak "
           f"{ours['peak_loading_tables_mib']:.0f} MiB; process peak {ours['peak_mib']:.0f} MiB")
     python = devkit_python(args.devkit_python)
     if args.no_devkit or not python.is_file():
-        print("devkit: skipped" + ("" if args.no_devkit else f" (no interpreter at {python}; run scripts/devkit_venv.sh)"))
+        print("devkit: skipped"
+              + ("" if args.no_devkit else f" (no interpreter at {python}; run scripts/devkit_venv.sh)"))
         return 0
     print("devkit: running (this takes a while at full size) ...", flush=True)
     theirs = run_devkit(python, dataroot, results)
     d = theirs["times"]
-    print(f"devkit: tables {d['tables']:.1f} s | DetectionEval(...) {d['init']:.1f} s | evaluate() {d['evaluate']:.1f} s "
-          f"| peak RSS {theirs['peak_mib']:.0f} MiB")
+    print(f"devkit: tables {d['tables']:.1f} s | DetectionEval(...) {d['init']:.1f} s | "
+          f"evaluate() {d['evaluate']:.1f} s | peak RSS {theirs['peak_mib']:.0f} MiB")
     print(f"ratio devkit/ours: evaluate() vs matching + metrics {d['evaluate'] / t['matching_and_metrics']:.0f}x; "
           f"results file -> metrics, tables loaded: {(d['init'] + d['evaluate']) / end_to_end:.0f}x "
           f"({d['init'] + d['evaluate']:.0f} s vs {end_to_end:.1f} s)")

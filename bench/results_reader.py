@@ -118,7 +118,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--reference", default="58db60f", help="commit whose reader is the reference")
     parser.add_argument("--repeat", type=int, default=1, help="reads per reader (best time kept)")
-    parser.add_argument("--workdir", default=None, help="where the file is written and reused (default: a temporary folder)")
+    parser.add_argument("--workdir", default=None,
+                        help="where the file is written and reused (default: a temporary folder)")
     args = parser.parse_args(argv)
 
     with tempfile.TemporaryDirectory() as temporary:

@@ -127,7 +127,8 @@ def main() -> None:
     if args.checks:
         measure_checks(cache, work, args.epochs, args.device)
     big = copies(cache, 4, work / "cache-4x")
-    memory = {times: child(folder, work / f"run-{times}x", 1, 1)["peak_rss_mb"] for times, folder in ((1, cache), (4, big))}
+    memory = {times: child(folder, work / f"run-{times}x", 1, 1)["peak_rss_mb"]
+              for times, folder in ((1, cache), (4, big))}
     print(f"peak RSS, one epoch: 1x cache {memory[1]:.0f} MB, 4x cache {memory[4]:.0f} MB "
           f"(ratio {memory[4] / memory[1]:.2f})")
     if args.keep is None:
