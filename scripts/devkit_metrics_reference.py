@@ -109,22 +109,36 @@ def _load(table_root: Path, name: str) -> list[dict]:
 # channel -> (translation, rotation w x y z, fx = fy, cx, cy).
 RIGS = {
     "scene-0061": {
-        "CAM_FRONT": ((1.70079, 0.01595, 1.51096), (0.49980, -0.50303, 0.49978, -0.49737), 1266.417, 816.267, 491.507),
-        "CAM_FRONT_RIGHT": ((1.55085, -0.49340, 1.49575), (0.20603, -0.20269, 0.68245, -0.67136), 1260.847, 807.968, 495.334),
-        "CAM_BACK_RIGHT": ((1.01488, -0.48057, 1.56240), (0.12281, -0.13240, -0.70043, 0.69050), 1259.514, 807.253, 501.196),
-        "CAM_BACK": ((0.02833, 0.00345, 1.57910), (0.50379, -0.49740, -0.49419, 0.50455), 809.221, 829.220, 481.778),
-        "CAM_BACK_LEFT": ((1.03569, 0.48480, 1.59097), (0.69242, -0.70316, -0.11648, 0.11203), 1256.741, 792.113, 492.776),
-        "CAM_FRONT_LEFT": ((1.52388, 0.49463, 1.50933), (0.67573, -0.67363, 0.21214, -0.21123), 1272.598, 826.615, 479.752),
-        "LIDAR_TOP": ((0.943713, 0.0, 1.84023), (0.70780, -0.00649, 0.01065, -0.70631), None, None, None),
+        "CAM_FRONT": (
+            (1.70079, 0.01595, 1.51096), (0.49980, -0.50303, 0.49978, -0.49737), 1266.417, 816.267, 491.507),
+        "CAM_FRONT_RIGHT": (
+            (1.55085, -0.49340, 1.49575), (0.20603, -0.20269, 0.68245, -0.67136), 1260.847, 807.968, 495.334),
+        "CAM_BACK_RIGHT": (
+            (1.01488, -0.48057, 1.56240), (0.12281, -0.13240, -0.70043, 0.69050), 1259.514, 807.253, 501.196),
+        "CAM_BACK": (
+            (0.02833, 0.00345, 1.57910), (0.50379, -0.49740, -0.49419, 0.50455), 809.221, 829.220, 481.778),
+        "CAM_BACK_LEFT": (
+            (1.03569, 0.48480, 1.59097), (0.69242, -0.70316, -0.11648, 0.11203), 1256.741, 792.113, 492.776),
+        "CAM_FRONT_LEFT": (
+            (1.52388, 0.49463, 1.50933), (0.67573, -0.67363, 0.21214, -0.21123), 1272.598, 826.615, 479.752),
+        "LIDAR_TOP": (
+            (0.943713, 0.0, 1.84023), (0.70780, -0.00649, 0.01065, -0.70631), None, None, None),
     },
     "scene-0103": {
-        "CAM_FRONT": ((1.72201, 0.00475, 1.49491), (0.50772, -0.49734, 0.49837, -0.49648), 1252.813, 826.588, 469.985),
-        "CAM_FRONT_RIGHT": ((1.58083, -0.49908, 1.51749), (0.20335, -0.19146, 0.67857, -0.67936), 1256.749, 817.789, 451.954),
-        "CAM_BACK_RIGHT": ((1.05945, -0.46720, 1.55051), (0.13819, -0.13797, -0.68933, 0.69763), 1249.963, 825.377, 462.548),
-        "CAM_BACK": ((0.05525, 0.01079, 1.56794), (0.50680, -0.49776, -0.49878, 0.49659), 796.891, 857.777, 476.885),
-        "CAM_BACK_LEFT": ((1.04852, 0.48306, 1.56210), (0.70486, -0.69073, -0.11209, 0.11617), 1254.986, 829.577, 467.168),
-        "CAM_FRONT_LEFT": ((1.57526, 0.50052, 1.50696), (0.68121, -0.66875, 0.21017, -0.21108), 1257.863, 827.241, 450.915),
-        "LIDAR_TOP": ((0.985793, 0.0, 1.84019), (0.70675, -0.01530, 0.01740, -0.70708), None, None, None),
+        "CAM_FRONT": (
+            (1.72201, 0.00475, 1.49491), (0.50772, -0.49734, 0.49837, -0.49648), 1252.813, 826.588, 469.985),
+        "CAM_FRONT_RIGHT": (
+            (1.58083, -0.49908, 1.51749), (0.20335, -0.19146, 0.67857, -0.67936), 1256.749, 817.789, 451.954),
+        "CAM_BACK_RIGHT": (
+            (1.05945, -0.46720, 1.55051), (0.13819, -0.13797, -0.68933, 0.69763), 1249.963, 825.377, 462.548),
+        "CAM_BACK": (
+            (0.05525, 0.01079, 1.56794), (0.50680, -0.49776, -0.49878, 0.49659), 796.891, 857.777, 476.885),
+        "CAM_BACK_LEFT": (
+            (1.04852, 0.48306, 1.56210), (0.70486, -0.69073, -0.11209, 0.11617), 1254.986, 829.577, 467.168),
+        "CAM_FRONT_LEFT": (
+            (1.57526, 0.50052, 1.50696), (0.68121, -0.66875, 0.21017, -0.21108), 1257.863, 827.241, 450.915),
+        "LIDAR_TOP": (
+            (0.985793, 0.0, 1.84019), (0.70675, -0.01530, 0.01740, -0.70708), None, None, None),
     },
 }
 SCENES = {"scene-0061": 12, "scene-0103": 14}  # samples (2 Hz key frames); mini_train and mini_val
@@ -203,8 +217,9 @@ def _write_scene(tables: dict[str, list[dict]], rng: random.Random, scene: str, 
             "rotation": [v / norm for v in rotation],
             "camera_intrinsic": [[focal, 0.0, cx], [0.0, focal, cy], [0.0, 0.0, 1.0]] if focal else []})
     samples = [_token("sample", scene, k) for k in range(count)]
-    tables["scene"].append({"token": _token("scene", scene), "name": scene, "description": "reference", "log_token": log,
-                            "nbr_samples": count, "first_sample_token": samples[0], "last_sample_token": samples[-1]})
+    tables["scene"].append({"token": _token("scene", scene), "name": scene, "description": "reference",
+                            "log_token": log, "nbr_samples": count, "first_sample_token": samples[0],
+                            "last_sample_token": samples[-1]})
     t0 = 1_532_402_927_000_000 + scene_index * 60_000_000
     origin = (600.0 + 400.0 * scene_index, 1600.0)
     ego = []
@@ -212,7 +227,8 @@ def _write_scene(tables: dict[str, list[dict]], rng: random.Random, scene: str, 
         heading = 0.4 + 0.05 * k + scene_index
         ego.append((origin[0] + 40 * math.sin(0.12 * k), origin[1] + 4.5 * k, heading))
         tables["sample"].append({"token": token, "timestamp": t0 + 500_000 * k, "prev": samples[k - 1] if k else "",
-                                 "next": samples[k + 1] if k + 1 < count else "", "scene_token": _token("scene", scene)})
+                                 "next": samples[k + 1] if k + 1 < count else "",
+                                 "scene_token": _token("scene", scene)})
         pose = _token("ego_pose", scene, k)
         tables["ego_pose"].append({"token": pose, "timestamp": t0 + 500_000 * k,
                                    "rotation": [math.cos(heading / 2), 0.0, 0.0, math.sin(heading / 2)],
@@ -427,7 +443,8 @@ def _devkit_regions(nusc, boxes) -> dict[str, set[int]]:
     for index, box in enumerate(boxes):
         sample = nusc.get("sample", box.sample_token)
         pose = nusc.get("ego_pose", nusc.get("sample_data", sample["data"]["LIDAR_TOP"])["ego_pose_token"])
-        center_ego = Quaternion(pose["rotation"]).inverse.rotate(np.array(box.translation) - np.array(pose["translation"]))
+        center_ego = Quaternion(pose["rotation"]).inverse.rotate(
+            np.array(box.translation) - np.array(pose["translation"]))
         seen = {}
         for channel in RING:
             sd = nusc.get("sample_data", sample["data"][channel])
