@@ -41,9 +41,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sianms_cli.evaluation.boxes import ATTRIBUTE, DETECTION_NAMES, NO_ATTRIBUTE, empty_boxes
-from sianms_cli.evaluation.evaluate import evaluate
-from sianms_cli.evaluation.results import read_results, results_from_boxes, write_results
+from sianms_cli.metrics.boxes import ATTRIBUTE, DETECTION_NAMES, NO_ATTRIBUTE, empty_boxes
+from sianms_cli.metrics.evaluate import evaluate
+from sianms_cli.metrics.results import read_results, results_from_boxes, write_results
 from sianms_cli.geometry.quaternion import yaw_to_quat
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.splits import splits_for_version
@@ -173,7 +173,7 @@ def write_predictions(dataroot: Path, out: Path, seed: int) -> None:
     """PRED_PER_CLASS predictions per class and sample: half near a GT box of the class."""
     rng = np.random.default_rng(seed + 1)
     db = NuScenesDB(dataroot, VERSION)
-    from sianms_cli.evaluation.dataset import ego_poses, eval_split, ground_truth
+    from sianms_cli.metrics.dataset import ego_poses, eval_split, ground_truth
 
     split = eval_split(db, SPLIT)
     gt, _ = ground_truth(db, split)

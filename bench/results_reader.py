@@ -5,7 +5,7 @@ of ``--boxes`` boxes, 200 per sample (20 per class, as bench/metrics.py; 1,203,8
 are its 6,019 validation samples, ~0.5 GB), with float64 values printed by Python's repr as
 our writer prints them. Then reads it in a fresh process per reader, ``--repeat`` times each:
 
-- the reference: ``sianms_cli/evaluation/results.py`` at ``--reference`` (git show, loaded as
+- the reference: ``sianms_cli/metrics/results.py`` at ``--reference`` (git show, loaded as
   a module of its own; it uses the current sianms_cli for everything else);
 - ours: the working tree's ``read_results``.
 
@@ -13,7 +13,7 @@ Prints each reader's best wall time, the ratio, the peak RSS of each reading pro
 whether both gave the same tokens and the same table to the bit (exit 1 if not). The
 reference commit 58db60f is the reader before the collector was paused during decoding
 (issue 10 asks for 3x on 1.2 M boxes). Files of at least ``SCAN_MIN_BYTES`` (64 MiB) go
-through the compiled scanner (:mod:`sianms_cli.evaluation.results_scan`), whose first read
+through the compiled scanner (:mod:`sianms_cli.metrics.results_scan`), whose first read
 after an install compiles it (about 6 s, cached): ``--repeat 2`` or more keeps the best.
 
     python bench/results_reader.py                   # 1.2 M boxes
@@ -35,8 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sianms_cli.evaluation.boxes import ATTRIBUTE_NAMES, DETECTION_NAMES, empty_boxes
-from sianms_cli.evaluation.results import results_from_boxes, write_results
+from sianms_cli.metrics.boxes import ATTRIBUTE_NAMES, DETECTION_NAMES, empty_boxes
+from sianms_cli.metrics.results import results_from_boxes, write_results
 from sianms_cli.geometry.quaternion import yaw_to_quat
 
 REPO = Path(__file__).resolve().parents[1]
@@ -62,7 +62,7 @@ def write_workload(path: Path, boxes: int, seed: int) -> None:
 
 def reference_module(commit: str, folder: Path):
     """results.py at ``commit``, loaded as the module ``reference_results``."""
-    source = subprocess.run(["git", "-C", str(REPO), "show", f"{commit}:sianms_cli/evaluation/results.py"],
+    source = subprocess.run(["git", "-C", str(REPO), "show", f"{commit}:sianms_cli/metrics/results.py"],
                             capture_output=True, text=True, check=True).stdout
     path = folder / "reference_results.py"
     path.write_text(source)
@@ -84,7 +84,7 @@ def _peak_rss_mib() -> float:
 def _read_child(results_path: str, reference: str | None, folder: str, queue) -> None:
     try:
         if reference is None:
-            from sianms_cli.evaluation.results import read_results
+            from sianms_cli.metrics.results import read_results
         else:
             read_results = reference_module(reference, Path(folder)).read_results
         started = time.perf_counter()

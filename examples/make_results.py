@@ -45,9 +45,9 @@ use_avx2_kernels()  # before numpy loads: the same bytes as `sianms` writes on a
 import numpy as np  # noqa: E402
 
 from sianms_cli.errors import SianmsError, check_seed
-from sianms_cli.evaluation.boxes import NO_ATTRIBUTE
-from sianms_cli.evaluation.dataset import eval_split, ground_truth
-from sianms_cli.evaluation.results import results_from_boxes, write_results
+from sianms_cli.metrics.boxes import NO_ATTRIBUTE
+from sianms_cli.metrics.dataset import eval_split, ground_truth
+from sianms_cli.metrics.results import results_from_boxes, write_results
 from sianms_cli.geometry.quaternion import quat_multiply, yaw_to_quat
 from sianms_cli.io import check_outside_dataroot, describe_os_error
 from sianms_cli.nuscenes.loader import NuScenesDB

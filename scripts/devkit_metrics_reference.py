@@ -33,7 +33,7 @@ when its centre, taken into the ego frame with the ego pose of the sample's LIDA
 frame, lies in front of both cameras of a contiguous pair of the nuScenes ring and projects
 inside both images (0 <= u < W, 0 <= v < H). The filtered ground truth and predictions of
 ``DetectionEval`` are restricted to the region before ``evaluate()``: an independent
-implementation of the rule that tests/evaluation compares ours with.
+implementation of the rule that tests/metrics compares ours with.
 """
 
 from __future__ import annotations

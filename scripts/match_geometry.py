@@ -42,7 +42,7 @@ def match_geometry(boxes: AllBoxes) -> dict[str, dict[str, float]]:
 
 def demo_boxes(folder: Path) -> AllBoxes:
     """The boxes of a `sianms demo` folder's evaluation."""
-    from sianms_cli.evaluation.dataset import eval_split
+    from sianms_cli.metrics.dataset import eval_split
     from sianms_cli.nuscenes.loader import NuScenesDB
     from sianms_cli.pipelines.finish import read_boxes
 

@@ -13,7 +13,7 @@ import pytest
 
 from sianms_cli.cli._app import command
 from sianms_cli.errors import DataFormatError, SianmsError
-from sianms_cli.evaluation.results import ResultsFormatError
+from sianms_cli.metrics.results import ResultsFormatError
 from sianms_cli.processes import Terminated, worker_pool
 
 

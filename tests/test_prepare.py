@@ -10,9 +10,9 @@ from sianms_cli.data.cache import decode_roi_features, read_dataset, roi_feature
 from sianms_cli.data.index import build_pair_index
 from sianms_cli.detection2d.external import ExternalDetections
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
-from sianms_cli.evaluation.boxes import LABEL
-from sianms_cli.evaluation.dataset import ego_poses, eval_split, ground_truth
-from sianms_cli.evaluation.regions import centers_in_ego, overlap_bits, region_mask
+from sianms_cli.metrics.boxes import LABEL
+from sianms_cli.metrics.dataset import ego_poses, eval_split, ground_truth
+from sianms_cli.metrics.regions import centers_in_ego, overlap_bits, region_mask
 from sianms_cli.geometry.frustum import points_in_frustum, rotate_from_frustum
 from sianms_cli.geometry.boxes import points_in_boxes
 from sianms_cli.nuscenes.loader import NuScenesDB

@@ -34,8 +34,8 @@ def metrics_cli(
 
     As in the devkit, a class without ground truth scores AP 0 and stays in mAP and NDS; the table marks it *.
     """
-    from sianms_cli.evaluation.evaluate import MetricsConfig, run
-    from sianms_cli.evaluation.report import report_json
+    from sianms_cli.metrics.evaluate import MetricsConfig, run
+    from sianms_cli.metrics.report import report_json
     from sianms_cli.reporting.metrics_table import format_metrics
 
     metrics_config = MetricsConfig(dataroot=str(dataroot), version=version, split=split, results=str(results),

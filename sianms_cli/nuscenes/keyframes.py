@@ -3,7 +3,7 @@ and the LiDAR sweep chains before them.
 
 The vectorised counterpart of the loader's record-by-record ``keyframe_data``, ``ego_pose_of``
 and ``calibration_of``: one call serves a whole scene or split, so per-sample work looks
-nothing up by token (as :mod:`sianms_cli.evaluation.dataset` does for the evaluation).
+nothing up by token (as :mod:`sianms_cli.metrics.dataset` does for the evaluation).
 """
 
 from __future__ import annotations

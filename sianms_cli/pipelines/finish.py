@@ -23,13 +23,13 @@ import pyarrow.parquet as pq
 
 from sianms_cli.data.cache import complete_manifest, reading_shard
 from sianms_cli.errors import DataFormatError
-from sianms_cli.evaluation.boxes import ATTRIBUTE, BOX_DTYPE, LABEL, NO_ATTRIBUTE
-from sianms_cli.evaluation.config import load_config
-from sianms_cli.evaluation.dataset import eval_split
-from sianms_cli.evaluation.algo import MetricData
-from sianms_cli.evaluation.evaluate import detail_key, evaluate, write_details
-from sianms_cli.evaluation.report import MetricsReport, write_report
-from sianms_cli.evaluation.results import results_from_boxes, write_results
+from sianms_cli.metrics.boxes import ATTRIBUTE, BOX_DTYPE, LABEL, NO_ATTRIBUTE
+from sianms_cli.metrics.config import load_config
+from sianms_cli.metrics.dataset import eval_split
+from sianms_cli.metrics.algo import MetricData
+from sianms_cli.metrics.evaluate import detail_key, evaluate, write_details
+from sianms_cli.metrics.report import MetricsReport, write_report
+from sianms_cli.metrics.results import results_from_boxes, write_results
 from sianms_cli.geometry.quaternion import yaw_to_quat
 from sianms_cli.io import write_json, write_text
 from sianms_cli.nuscenes.loader import NuScenesDB
@@ -147,7 +147,7 @@ def read_boxes(paths: list[Path], sample_tokens: list[str]) -> AllBoxes:
 
 
 def box_table(boxes: AllBoxes, rows: np.ndarray, default_attribute: dict[str, str]) -> np.ndarray:
-    """The selected rows as a results box table (:data:`~sianms_cli.evaluation.boxes.BOX_DTYPE`)."""
+    """The selected rows as a results box table (:data:`~sianms_cli.metrics.boxes.BOX_DTYPE`)."""
     table = np.zeros(len(rows), dtype=BOX_DTYPE)
     table["sample"] = boxes.sample[rows]
     names, index = np.unique(boxes.classes[rows], return_inverse=True)  # a lookup per class, not per box

@@ -4,16 +4,16 @@ A **duplicate** is a prediction that is a false positive at the matching thresho
 errors (2 m) although a ground-truth box of its class lies within that distance in its
 sample: the box was there, another prediction took it first. That is what a duplicate
 suppressor exists to remove; counted per class and region with the devkit's own greedy
-matching (:func:`sianms_cli.evaluation.algo.greedy_match`).
+matching (:func:`sianms_cli.metrics.algo.greedy_match`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from sianms_cli.evaluation.algo import MetricData, greedy_match, processing_order
-from sianms_cli.evaluation.boxes import LABEL
-from sianms_cli.evaluation.evaluate import details_of
+from sianms_cli.metrics.algo import MetricData, greedy_match, processing_order
+from sianms_cli.metrics.boxes import LABEL
+from sianms_cli.metrics.evaluate import details_of
 
 
 def near_ground_truth(gt_sample: np.ndarray, gt_xy: np.ndarray, pred_sample: np.ndarray, pred_xy: np.ndarray,
@@ -49,7 +49,7 @@ class RegionFigures:
     """Collects, per region, the duplicates per class and, for the regions in ``curve_regions``,
     the devkit's 101-point curves of every class and threshold (``metrics_details.json``).
 
-    Pass :meth:`collect` as ``inspect`` to :func:`sianms_cli.evaluation.evaluate.evaluate`.
+    Pass :meth:`collect` as ``inspect`` to :func:`sianms_cli.metrics.evaluate.evaluate`.
     """
 
     def __init__(self, classes: tuple[str, ...], distance: float, curve_regions: tuple[str, ...]) -> None:

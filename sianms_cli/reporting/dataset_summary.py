@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from sianms_cli.errors import SianmsError
-from sianms_cli.evaluation.config import DETECTION_CVPR_2019
+from sianms_cli.metrics.config import DETECTION_CVPR_2019
 from sianms_cli.geometry.quaternion import quat_to_matrix
 from sianms_cli.io import check_outside_dataroot, check_writable_output, json_text, real_path, write_files_together
 from sianms_cli.progress import SILENT, Progress

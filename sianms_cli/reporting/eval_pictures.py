@@ -19,7 +19,7 @@ from typing import Mapping
 import numpy as np
 
 from sianms_cli.detection2d.classes import detection_classes_of
-from sianms_cli.evaluation.algo import MetricData
+from sianms_cli.metrics.algo import MetricData
 from sianms_cli.geometry.bev import bev_corners
 from sianms_cli.geometry.quaternion import quat_yaw
 from sianms_cli.geometry.transforms import apply_transform, invert_transform, make_transform

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from typing import Any, Mapping
 
-from sianms_cli.evaluation.report import MetricsReport
+from sianms_cli.metrics.report import MetricsReport
 from sianms_cli.pipelines.methods import IOU_METHODS, split_name
 
 TABLE_CLASS = "car"  # Table I is car only (paper §V-B: siaNMS matches cars)

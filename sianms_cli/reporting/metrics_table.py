@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import math
 
-from sianms_cli.evaluation.boxes import TP_METRICS
-from sianms_cli.evaluation.metrics import threshold_key
-from sianms_cli.evaluation.report import MetricsReport, RegionMetrics
+from sianms_cli.metrics.boxes import TP_METRICS
+from sianms_cli.metrics.metrics import threshold_key
+from sianms_cli.metrics.report import MetricsReport, RegionMetrics
 
 TP_HEADERS = {"trans_err": "ATE", "scale_err": "ASE", "orient_err": "AOE", "vel_err": "AVE", "attr_err": "AAE"}
 NO_GT_MARK = "*"

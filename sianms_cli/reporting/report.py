@@ -573,7 +573,7 @@ def draw_figures(folder: Path, summary: Mapping[str, Any], eval_folder: Path,
                  out: Path) -> tuple[list[Figure], list[str]]:
     """``pr_curves.png`` and ``tp_curves.png`` in ``folder`` from the evaluation's metrics_details files,
     and the evaluation's bird's-eye pictures; a note where something could not be drawn."""
-    from sianms_cli.evaluation.evaluate import detail_key, read_details
+    from sianms_cli.metrics.evaluate import detail_key, read_details
     from sianms_cli.reporting.eval_pictures import draw_pr_curves, draw_tp_curves
 
     name, cfg = summary["table_class"], summary["config"]["metrics"]

@@ -230,7 +230,7 @@ def test_a_path_that_starts_with_a_tilde_is_the_home_folders(tmp_path, monkeypat
 def test_a_tilde_in_a_config_file_or_after_file_colon_is_the_home_folders(tmp_path, monkeypatch):
     """--config and --detector are text options (a preset name, file:PATH): their paths had kept the tilde."""
     from sianms_cli.detection2d.detectors import parse_detector
-    from sianms_cli.evaluation.config import load_config
+    from sianms_cli.metrics.config import load_config
 
     monkeypatch.setenv("HOME", str(tmp_path))
     (tmp_path / "c.json").write_text(json.dumps({"min_recall": 0.2}))

@@ -84,7 +84,7 @@ def test_help_imports_no_evaluation_code():
     assert "--results" in timings.stdout and "--overwrite" in timings.stdout
     imported = [line.rsplit("|", 1)[-1].strip() for line in timings.stderr.splitlines()]
     assert "sianms_cli.cli.metrics" in imported
-    assert not [name for name in imported if name.startswith(("sianms_cli.evaluation", "sianms_cli.reporting"))]
+    assert not [name for name in imported if name.startswith(("sianms_cli.metrics", "sianms_cli.reporting"))]
 
 
 def test_json_output_and_paper_config(data):

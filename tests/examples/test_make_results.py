@@ -13,7 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 from sianms_cli.cli import app
-from sianms_cli.evaluation.evaluate import MetricsConfig, run
+from sianms_cli.metrics.evaluate import MetricsConfig, run
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = REPO_ROOT / "examples" / "make_results.py"

@@ -471,7 +471,7 @@ def test_chain_that_goes_on_after_its_last_sample(tiny_dataroot, rewrite_table, 
 
 
 def test_the_metrics_split_blames_a_broken_chain_on_sample_json(tiny_dataroot, rewrite_table, tiny_records):
-    from sianms_cli.evaluation.dataset import eval_split
+    from sianms_cli.metrics.dataset import eval_split
     from sianms_cli.nuscenes.splits import split_scene_names
 
     samples, scene = tiny_records["sample"], tiny_records["scene"][0]

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from devkit_venv import DEVKIT_MARKS, DEVKIT_PYTHON, REPO_ROOT
 
-from sianms_cli.evaluation.evaluate import evaluate
-from sianms_cli.evaluation.results import read_results
+from sianms_cli.metrics.evaluate import evaluate
+from sianms_cli.metrics.results import read_results
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.pipelines.job import EvalConfig, run
 

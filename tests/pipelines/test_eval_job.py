@@ -12,9 +12,9 @@ import pytest
 from cache_records import record_again
 
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
-from sianms_cli.evaluation.algo import calc_ap
-from sianms_cli.evaluation.evaluate import read_details
-from sianms_cli.evaluation.results import read_results
+from sianms_cli.metrics.algo import calc_ap
+from sianms_cli.metrics.evaluate import read_details
+from sianms_cli.metrics.results import read_results
 from sianms_cli.pipelines.job import EvalConfig, claim_output, run
 from sianms_cli.pipelines.methods import METHODS
 from sianms_cli.progress import SILENT

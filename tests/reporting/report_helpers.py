@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sianms_cli.evaluation.algo import NELEM, MetricData
-from sianms_cli.evaluation.config import load_config
-from sianms_cli.evaluation.evaluate import write_details
+from sianms_cli.metrics.algo import NELEM, MetricData
+from sianms_cli.metrics.config import load_config
+from sianms_cli.metrics.evaluate import write_details
 from sianms_cli.reporting.eval_table import PAPER_TABLE_I
 
 METHODS = ("vanilla", "axis-nms", "sianms", "oracle")

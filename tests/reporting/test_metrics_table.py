@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import math
 
-from sianms_cli.evaluation.config import load_config
-from sianms_cli.evaluation.report import FilterCounts, MetricsReport, RegionMetrics
+from sianms_cli.metrics.config import load_config
+from sianms_cli.metrics.report import FilterCounts, MetricsReport, RegionMetrics
 from sianms_cli.reporting.metrics_table import format_metrics
 
 CONFIG = load_config("paper")

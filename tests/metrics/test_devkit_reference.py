@@ -16,7 +16,7 @@ import pytest
 
 from devkit_venv import needs_devkit
 from metrics_reference import reference_script
-from sianms_cli.evaluation import evaluate, load_config, read_results
+from sianms_cli.metrics import evaluate, load_config, read_results
 
 SUMMARY_KEYS = ("label_aps", "mean_dist_aps", "mean_ap", "label_tp_errors", "tp_errors", "tp_scores", "nd_score")
 TOLERANCE = 1e-9

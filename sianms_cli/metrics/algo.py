@@ -28,7 +28,7 @@ from typing import Sequence
 
 import numpy as np
 
-from sianms_cli.evaluation.boxes import LABEL, NO_ATTRIBUTE, TP_METRICS
+from sianms_cli.metrics.boxes import LABEL, NO_ATTRIBUTE, TP_METRICS
 from sianms_cli.geometry.quaternion import quat_yaw
 
 NELEM = 101
@@ -407,7 +407,7 @@ def accumulate_thresholds(gt: np.ndarray, pred: np.ndarray, class_name: str | in
     """The devkit's ``accumulate`` at each threshold of ``dist_ths``, matching once per threshold.
 
     Args:
-        gt, pred: box tables (:data:`~sianms_cli.evaluation.boxes.BOX_DTYPE`), already
+        gt, pred: box tables (:data:`~sianms_cli.metrics.boxes.BOX_DTYPE`), already
             filtered, rows in the devkit's order; only rows of ``class_name`` are used.
         class_name: detection class name or index.
         dist_ths: matching thresholds, metres.

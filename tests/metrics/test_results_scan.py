@@ -8,11 +8,11 @@ import json
 import numpy as np
 import pytest
 
-import sianms_cli.evaluation.results as results_module
-import sianms_cli.evaluation.results_scan as scan_module
-from sianms_cli.evaluation.boxes import ATTRIBUTE_NAMES, DETECTION_NAMES
-from sianms_cli.evaluation.results import ResultsFormatError, read_results
-from sianms_cli.evaluation.results_scan import read_plain_results
+import sianms_cli.metrics.results as results_module
+import sianms_cli.metrics.results_scan as scan_module
+from sianms_cli.metrics.boxes import ATTRIBUTE_NAMES, DETECTION_NAMES
+from sianms_cli.metrics.results import ResultsFormatError, read_results
+from sianms_cli.metrics.results_scan import read_plain_results
 
 KEYS = ("sample_token", "translation", "size", "rotation", "velocity", "detection_name",
         "detection_score", "attribute_name")

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from sianms_cli.evaluation.algo import NELEM, MetricData, cummean
-from sianms_cli.evaluation.boxes import LABEL, NO_ATTRIBUTE
+from sianms_cli.metrics.algo import NELEM, MetricData, cummean
+from sianms_cli.metrics.boxes import LABEL, NO_ATTRIBUTE
 from sianms_cli.geometry.quaternion import quat_yaw
 
 

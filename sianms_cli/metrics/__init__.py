@@ -4,7 +4,7 @@ TP errors and NDS, with the same numbers as nuscenes-devkit 1.2.0 (see docs/metr
 Knows nothing of models. Boxes travel as one structured array per set (:data:`BOX_DTYPE`).
 """
 
-from sianms_cli.evaluation.algo import (
+from sianms_cli.metrics.algo import (
     MetricData,
     accumulate,
     accumulate_thresholds,
@@ -17,7 +17,7 @@ from sianms_cli.evaluation.algo import (
     velocity_l2,
     yaw_diff,
 )
-from sianms_cli.evaluation.boxes import (
+from sianms_cli.metrics.boxes import (
     ATTRIBUTE_NAMES,
     BOX_DTYPE,
     DETECTION_NAMES,
@@ -25,11 +25,11 @@ from sianms_cli.evaluation.boxes import (
     empty_boxes,
     make_boxes,
 )
-from sianms_cli.evaluation.config import PRESETS, DetectionConfig, load_config
-from sianms_cli.evaluation.dataset import EvalSplit, eval_split, ground_truth
-from sianms_cli.evaluation.evaluate import MetricsConfig, align_results, evaluate
-from sianms_cli.evaluation.metrics import evaluate_boxes
-from sianms_cli.evaluation.report import (
+from sianms_cli.metrics.config import PRESETS, DetectionConfig, load_config
+from sianms_cli.metrics.dataset import EvalSplit, eval_split, ground_truth
+from sianms_cli.metrics.evaluate import MetricsConfig, align_results, evaluate
+from sianms_cli.metrics.metrics import evaluate_boxes
+from sianms_cli.metrics.report import (
     FilterCounts,
     MetricsReport,
     RegionMetrics,
@@ -37,7 +37,7 @@ from sianms_cli.evaluation.report import (
     report_json,
     write_report,
 )
-from sianms_cli.evaluation.results import (
+from sianms_cli.metrics.results import (
     Results,
     ResultsFormatError,
     read_results,

@@ -9,8 +9,8 @@ import pytest
 
 from metrics_reference import reference_script
 from sianms_cli.errors import DataFormatError
-from sianms_cli.evaluation import evaluate, read_results
-from sianms_cli.evaluation.report import MetricsReport, read_report, report_json, write_report
+from sianms_cli.metrics import evaluate, read_results
+from sianms_cli.metrics.report import MetricsReport, read_report, report_json, write_report
 
 
 @pytest.fixture(scope="module")

@@ -6,9 +6,9 @@ import warnings
 
 import numpy as np
 
-from sianms_cli.evaluation.boxes import make_boxes
-from sianms_cli.evaluation.config import load_config
-from sianms_cli.evaluation.filters import ego_distance, filter_boxes, in_bicycle_rack
+from sianms_cli.metrics.boxes import make_boxes
+from sianms_cli.metrics.config import load_config
+from sianms_cli.metrics.filters import ego_distance, filter_boxes, in_bicycle_rack
 from sianms_cli.geometry.quaternion import yaw_to_quat
 
 EGO = np.array([[100.0, 200.0, 0.0], [-5.0, 3.0, 0.0]])

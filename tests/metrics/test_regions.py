@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from sianms_cli.errors import SianmsError
-from sianms_cli.evaluation.dataset import ego_poses, eval_split, ground_truth
-from sianms_cli.evaluation.regions import centers_in_ego, overlap_bits, region_mask, resolve_regions
+from sianms_cli.metrics.dataset import ego_poses, eval_split, ground_truth
+from sianms_cli.metrics.regions import centers_in_ego, overlap_bits, region_mask, resolve_regions
 from sianms_cli.geometry.transforms import apply_transform, invert_transform, make_transform
 from sianms_cli.nuscenes.overlap import box_overlap_pairs
 from sianms_cli.nuscenes.rigs import sample_rigs
@@ -70,7 +70,7 @@ def test_the_evaluations_overlap_is_the_datasets_one_rule(reference_db):
 
 
 def test_a_sample_without_cameras_has_no_overlap():
-    from sianms_cli.evaluation.boxes import make_boxes
+    from sianms_cli.metrics.boxes import make_boxes
 
     boxes = make_boxes([0, 0], "car", [[5, 0, 0], [10, 0, 0]])
     overlap = overlap_bits(boxes, boxes["translation"], [], np.array([-1]))

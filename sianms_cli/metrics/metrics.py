@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from sianms_cli.evaluation.algo import MetricData, accumulate_thresholds, calc_ap, calc_tp
-from sianms_cli.evaluation.boxes import DETECTION_NAMES, TP_METRICS
-from sianms_cli.evaluation.config import DetectionConfig
+from sianms_cli.metrics.algo import MetricData, accumulate_thresholds, calc_ap, calc_tp
+from sianms_cli.metrics.boxes import DETECTION_NAMES, TP_METRICS
+from sianms_cli.metrics.config import DetectionConfig
 
 NAN_TP_METRICS: dict[str, tuple[str, ...]] = {
     "traffic_cone": ("attr_err", "vel_err", "orient_err"),

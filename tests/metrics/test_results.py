@@ -9,10 +9,10 @@ import os
 import numpy as np
 import pytest
 
-import sianms_cli.evaluation.results as results_module
+import sianms_cli.metrics.results as results_module
 from sianms_cli.errors import DataFormatError, OutputExistsError
-from sianms_cli.evaluation.boxes import make_boxes
-from sianms_cli.evaluation.results import (
+from sianms_cli.metrics.boxes import make_boxes
+from sianms_cli.metrics.results import (
     Results,
     ResultsFormatError,
     read_results,

@@ -10,8 +10,8 @@ import pytest
 
 from metrics_reference import reference_script
 from sianms_cli.errors import DataFormatError, SianmsError
-from sianms_cli.evaluation.boxes import ATTRIBUTE, DETECTION_NAMES, NO_ATTRIBUTE
-from sianms_cli.evaluation.dataset import bicycle_racks, ego_poses, eval_split, ground_truth
+from sianms_cli.metrics.boxes import ATTRIBUTE, DETECTION_NAMES, NO_ATTRIBUTE
+from sianms_cli.metrics.dataset import bicycle_racks, ego_poses, eval_split, ground_truth
 from sianms_cli.nuscenes.classes import CATEGORY_TO_DETECTION
 from sianms_cli.nuscenes.loader import NuScenesDB
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from devkit_port import accumulate_reference
-from sianms_cli.evaluation.algo import (
+from sianms_cli.metrics.algo import (
     MetricData,
     accumulate,
     accumulate_thresholds,
@@ -29,10 +29,10 @@ from sianms_cli.evaluation.algo import (
     velocity_l2,
     yaw_diff,
 )
-from sianms_cli.evaluation.algo import _NORM_FORMULAS, _norm_probes, _norm_rounding
-from sianms_cli.evaluation.boxes import ATTRIBUTE, TP_METRICS, make_boxes
-from sianms_cli.evaluation.config import load_config
-from sianms_cli.evaluation.metrics import NAN_TP_METRICS, summarize, threshold_key
+from sianms_cli.metrics.algo import _NORM_FORMULAS, _norm_probes, _norm_rounding
+from sianms_cli.metrics.boxes import ATTRIBUTE, TP_METRICS, make_boxes
+from sianms_cli.metrics.config import load_config
+from sianms_cli.metrics.metrics import NAN_TP_METRICS, summarize, threshold_key
 from sianms_cli.geometry.quaternion import yaw_to_quat
 
 # --------------------------------------------------------------------------- devkit test_utils

@@ -26,7 +26,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from sianms_cli.errors import DataFormatError, SianmsError, quote
-from sianms_cli.evaluation.boxes import DETECTION_NAMES, LABEL
+from sianms_cli.metrics.boxes import DETECTION_NAMES, LABEL
 from sianms_cli.nuscenes.classes import PAPER_CLASSES
 from sianms_cli.io import RECORD_MAX_BYTES, expand_home, read_json
 from sianms_cli.json_stream import is_finite_number, is_number, json_kind

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sianms_cli.errors import DataFormatError, SianmsError
-from sianms_cli.evaluation.boxes import (
+from sianms_cli.metrics.boxes import (
     ATTRIBUTE,
     BICYCLE_RACK,
     LABEL,

@@ -12,10 +12,10 @@ The pipeline is the devkit's ``DetectionEval``, on arrays (docs/metrics.md#what-
    GT and predictions alike, then matching, AP, TP errors, means and NDS.
 
 A class without ground truth in a region scores AP 0 and TP errors 1 and stays in mAP, the
-mean TP errors and NDS, as the devkit scores it; :class:`~sianms_cli.evaluation.report.
+mean TP errors and NDS, as the devkit scores it; :class:`~sianms_cli.metrics.report.
 RegionMetrics` says which classes had none. :func:`run` is the command (a
 :class:`MetricsConfig`, an optional JSON output); :func:`evaluate` the same on a loaded dataset
-and results. Both return a :class:`~sianms_cli.evaluation.report.MetricsReport`.
+and results. Both return a :class:`~sianms_cli.metrics.report.MetricsReport`.
 """
 
 from __future__ import annotations
@@ -31,13 +31,13 @@ import numpy as np
 
 from sianms_cli.errors import DataFormatError, SianmsError
 from sianms_cli.json_stream import fits_float
-from sianms_cli.evaluation.algo import NELEM, MetricData
-from sianms_cli.evaluation.boxes import DETECTION_NAMES
-from sianms_cli.evaluation.config import PRESETS, DetectionConfig, load_config
-from sianms_cli.evaluation.dataset import EvalSplit, bicycle_racks, ego_poses, eval_split, ground_truth
-from sianms_cli.evaluation.filters import FilterResult, filter_boxes
-from sianms_cli.evaluation.metrics import evaluate_boxes, threshold_key
-from sianms_cli.evaluation.regions import (
+from sianms_cli.metrics.algo import NELEM, MetricData
+from sianms_cli.metrics.boxes import DETECTION_NAMES
+from sianms_cli.metrics.config import PRESETS, DetectionConfig, load_config
+from sianms_cli.metrics.dataset import EvalSplit, bicycle_racks, ego_poses, eval_split, ground_truth
+from sianms_cli.metrics.filters import FilterResult, filter_boxes
+from sianms_cli.metrics.metrics import evaluate_boxes, threshold_key
+from sianms_cli.metrics.regions import (
     ALL,
     EVERY_PAIR,
     NON_OVERLAP,
@@ -49,8 +49,8 @@ from sianms_cli.evaluation.regions import (
     region_mask,
     resolve_regions,
 )
-from sianms_cli.evaluation.report import FilterCounts, MetricsReport, RegionMetrics, report_json
-from sianms_cli.evaluation.results import (
+from sianms_cli.metrics.report import FilterCounts, MetricsReport, RegionMetrics, report_json
+from sianms_cli.metrics.results import (
     Results,
     ResultsFormatError,
     check_box_counts,
@@ -77,7 +77,7 @@ class MetricsConfig:
         results: the results file in the nuScenes submission format (``--results``).
         detection_config: a preset (``detection_cvpr_2019``, ``paper``) or a JSON file with
             the devkit's config fields (``--config``).
-        regions: region names (:mod:`sianms_cli.evaluation.regions`), in report order; a
+        regions: region names (:mod:`sianms_cli.metrics.regions`), in report order; a
             comma-separated string is split. Camera pairs are checked against the dataset's
             rigs when it is loaded.
 
@@ -129,7 +129,7 @@ def run(config: MetricsConfig, out: str | Path | None = None, *, details: str | 
         overwrite: bool = False, progress: Progress = SILENT) -> MetricsReport:
     """`sianms metrics`: load the dataset, read the results, evaluate, write ``out`` if given.
 
-    ``out`` (the JSON report, :func:`~sianms_cli.evaluation.report.write_report`) and
+    ``out`` (the JSON report, :func:`~sianms_cli.metrics.report.write_report`) and
     ``details`` (the 101-point curves of every region, :func:`write_details`) are refused
     before any work when they are a folder, the results file, the same file, or exist while
     ``overwrite`` is false; they are written atomically together (:func:`~sianms_cli.io.write_files_together`), so a
@@ -282,10 +282,10 @@ def evaluate(
     Args:
         db: the dataset.
         split: a split name (predefined or from ``<version>/splits.json``) or an EvalSplit.
-        results: the results (:func:`~sianms_cli.evaluation.results.read_results`), validated
+        results: the results (:func:`~sianms_cli.metrics.results.read_results`), validated
             here against the configuration's box limit.
         config: a preset name (``detection_cvpr_2019``, ``paper``), a JSON file or a config.
-        regions: region names (:mod:`sianms_cli.evaluation.regions`), or one comma-separated string.
+        regions: region names (:mod:`sianms_cli.metrics.regions`), or one comma-separated string.
         progress: told of each region evaluated.
         inspect: called per region with (name, its filtered GT and predictions as box tables,
             the 101-point curves by (class, threshold)), for figures the report does not keep

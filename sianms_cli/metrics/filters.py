@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sianms_cli.evaluation.boxes import LABEL, RACK_FILTERED
-from sianms_cli.evaluation.config import DetectionConfig
+from sianms_cli.metrics.boxes import LABEL, RACK_FILTERED
+from sianms_cli.metrics.config import DetectionConfig
 from sianms_cli.geometry.boxes import points_in_boxes
 
 

@@ -13,10 +13,10 @@ everything in the global frame, metres, m/s. Reading is stricter than the devkit
 file that reads here evaluates there; one :class:`ResultsFormatError` names the file, the
 sample token, the box index (0-based within the sample's list) and the field. Whether every
 sample of a split is present is checked by the evaluation
-(:func:`sianms_cli.evaluation.evaluate.align_results`). Files are read in chunks and decoded
+(:func:`sianms_cli.metrics.evaluate.align_results`). Files are read in chunks and decoded
 one sample at a time (:class:`~sianms_cli.json_stream.JsonStream`), so memory stays near the
 size of the boxes as arrays. Files of ``SCAN_MIN_BYTES`` and more are first read by the
-compiled scanner of :mod:`~sianms_cli.evaluation.results_scan`; whatever it does not accept is
+compiled scanner of :mod:`~sianms_cli.metrics.results_scan`; whatever it does not accept is
 read here, which names the problem.
 """
 
@@ -33,7 +33,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from sianms_cli.errors import DataFormatError, quote
-from sianms_cli.evaluation.boxes import (
+from sianms_cli.metrics.boxes import (
     ATTRIBUTE,
     ATTRIBUTE_NAMES,
     BOX_DTYPE,
@@ -58,7 +58,7 @@ _GETTERS = tuple(itemgetter(key) for key in BOX_KEYS)
 _CHUNK_CHARS = 1 << 23  # characters read at a time
 SCAN_MIN_BYTES = 64 << 20
 """Files at least this large are first read by the compiled scanner
-(:mod:`~sianms_cli.evaluation.results_scan`); below, loading it costs more than it saves."""
+(:mod:`~sianms_cli.metrics.results_scan`); below, loading it costs more than it saves."""
 _BATCH_BOXES = 1 << 13  # boxes decoded, then converted to arrays, at a time
 
 
@@ -80,7 +80,7 @@ class Results:
 
     Attributes:
         sample_tokens: the samples, in file (results-object) order.
-        boxes: box table (:data:`~sianms_cli.evaluation.boxes.BOX_DTYPE`); ``sample`` indexes
+        boxes: box table (:data:`~sianms_cli.metrics.boxes.BOX_DTYPE`); ``sample`` indexes
             ``sample_tokens``; rows grouped by sample in that order, list order within a sample
             (the devkit's flattened order).
         meta: the ``meta`` object.
@@ -264,7 +264,7 @@ def read_results(path: str | Path, *, max_boxes_per_sample: int = MAX_BOXES_PER_
 def _read_scanned(path: Path, max_boxes_per_sample: int, progress: Callable[[int], None]) -> Results | None:
     """The file read by the compiled scanner, or None when it is not in the plain form or
     breaks a rule: the exact reader then names the problem."""
-    from sianms_cli.evaluation.results_scan import read_plain_results  # loads numba
+    from sianms_cli.metrics.results_scan import read_plain_results  # loads numba
 
     plain = read_plain_results(path, progress)  # every box's values checked
     if plain is None:

@@ -32,9 +32,9 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from sianms_cli.errors import DataFormatError
-from sianms_cli.evaluation.boxes import TP_METRICS
-from sianms_cli.evaluation.config import DetectionConfig
-from sianms_cli.evaluation.metrics import threshold_key
+from sianms_cli.metrics.boxes import TP_METRICS
+from sianms_cli.metrics.config import DetectionConfig
+from sianms_cli.metrics.metrics import threshold_key
 from sianms_cli.io import check_writable_output, read_json, write_text
 
 SCHEMA = "sianms-metrics"

@@ -11,7 +11,7 @@ import pytest
 
 from metrics_reference import reference_script
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
-from sianms_cli.evaluation import (
+from sianms_cli.metrics import (
     Results,
     ResultsFormatError,
     align_results,
@@ -20,8 +20,8 @@ from sianms_cli.evaluation import (
     read_report,
     read_results,
 )
-from sianms_cli.evaluation.boxes import empty_boxes, make_boxes
-from sianms_cli.evaluation.evaluate import MetricsConfig, detail_key, read_details, run
+from sianms_cli.metrics.boxes import empty_boxes, make_boxes
+from sianms_cli.metrics.evaluate import MetricsConfig, detail_key, read_details, run
 from sianms_cli.io import OutputError
 
 SUMMARY_KEYS = {"label_aps", "mean_dist_aps", "mean_ap", "label_tp_errors", "tp_errors", "tp_scores", "nd_score",
@@ -75,7 +75,7 @@ def test_no_prediction_at_all_scores_zero_without_failing(reference_db):
 
 
 def _ground_truth_as_predictions(db, split):
-    from sianms_cli.evaluation.dataset import ground_truth
+    from sianms_cli.metrics.dataset import ground_truth
 
     gt, _ = ground_truth(db, split)
     gt = gt[gt["num_pts"] != 0]  # GT without points is dropped, a prediction never is
@@ -264,7 +264,7 @@ def test_a_pair_missing_from_the_rigs_is_refused_with_the_valid_pairs(reference_
 
 
 def test_the_configs_box_limit_applies_to_results_read_with_another(reference_folder, reference_db, tmp_path):
-    from sianms_cli.evaluation import DetectionConfig
+    from sianms_cli.metrics import DetectionConfig
 
     results = read_results(reference_folder / "results" / "perturbed_mini_val.json")
     assert results.validated

@@ -7,7 +7,7 @@ import json
 import pytest
 
 from sianms_cli.errors import DataFormatError, SianmsError
-from sianms_cli.evaluation.config import DETECTION_CVPR_2019, DetectionConfig, load_config
+from sianms_cli.metrics.config import DETECTION_CVPR_2019, DetectionConfig, load_config
 
 
 def test_detection_cvpr_2019_is_the_devkits_json():

@@ -1,6 +1,6 @@
 """A compiled fast path for large results files in their plain form.
 
-:func:`~sianms_cli.evaluation.results.read_results` decodes with orjson, which builds a Python
+:func:`~sianms_cli.metrics.results.read_results` decodes with orjson, which builds a Python
 dict, 5 lists, 13 floats and 4 strings per box and then copies them into arrays. This module
 reads such a file without a Python object per box: a numba scanner walks the bytes once,
 checks the grammar, codes the class and attribute names and writes an Arrow string view of
@@ -33,8 +33,8 @@ import orjson
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from sianms_cli.evaluation.boxes import ATTRIBUTE_NAMES, DETECTION_NAMES, NO_ATTRIBUTE, empty_boxes
-from sianms_cli.evaluation.results import BOX_KEYS, first_bad_row
+from sianms_cli.metrics.boxes import ATTRIBUTE_NAMES, DETECTION_NAMES, NO_ATTRIBUTE, empty_boxes
+from sianms_cli.metrics.results import BOX_KEYS, first_bad_row
 
 _NUMBERS = {"translation": (0, 3), "size": (3, 3), "rotation": (6, 4), "velocity": (10, 2),
             "detection_score": (12, 1)}
@@ -444,7 +444,7 @@ class PlainResults(NamedTuple):
 def read_plain_results(path: str | Path, progress: Callable[[int], None] | None = None) -> PlainResults | None:
     """The samples, box table and meta of a results file in the plain form, or None.
 
-    Every box's values are checked (:func:`~sianms_cli.evaluation.results.first_bad_row`);
+    Every box's values are checked (:func:`~sianms_cli.metrics.results.first_bad_row`);
     the samples (duplicates, counts) and the meta are left to the caller. None means the file
     is not in the plain form (see the module docstring) or some box breaks a rule; the caller
     then reads it with the exact reader, which names the problem. Nothing here raises for a

@@ -84,7 +84,7 @@ def make_boxes(
 
     ``label`` and ``attribute`` take indices or names (``""`` for no attribute). For tests,
     benchmarks and pipelines that hold boxes as arrays already; files go through
-    :mod:`sianms_cli.evaluation.results`.
+    :mod:`sianms_cli.metrics.results`.
     """
     translation = np.asarray(translation, dtype=np.float64).reshape(-1, 3)
     count = len(translation)
