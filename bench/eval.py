@@ -33,9 +33,9 @@ import pyarrow.parquet as pq
 import torch
 
 from sianms_cli.data import cache as cache_module
-from sianms_cli.pipelines import scene as scene_module
-from sianms_cli.pipelines.job import EvalConfig, run
-from sianms_cli.pipelines.scene import STAGES
+from sianms_cli.evaluation import scene as scene_module
+from sianms_cli.evaluation.job import EvalConfig, run
+from sianms_cli.evaluation.scene import STAGES
 
 NETWORK_STAGES = ("fpointnet_single", "embed", "fpointnet_union")
 

@@ -10,7 +10,7 @@ CenterPoint's car radius, 2.0 m). Measured in the same run:
   intersections per kept box; its kept boxes are checked to equal ``rotated_nms``'s;
 - numpy clipping: :func:`sianms_cli.geometry.bev.rotated_iou_pairs` on just the candidate
   pairs (centre distance <= half-diagonal sum), a lower bound for an NMS without numba;
-- a fresh process: importing ``sianms_cli.pipelines.nms`` and its first call, which loads
+- a fresh process: importing ``sianms_cli.evaluation.nms`` and its first call, which loads
   numba's cached machine code.
 
 Each timing is the fastest of its repeats (the machine may be busy). Prints a table in ms and
@@ -39,7 +39,7 @@ import shapely  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 
 from sianms_cli.geometry.bev import AXIS_MODES, bev_corners, rotated_iou_pairs  # noqa: E402
-from sianms_cli.pipelines.nms import CIRCLE_RADIUS_M, axis_nms, circle_nms, rotated_nms  # noqa: E402
+from sianms_cli.evaluation.nms import CIRCLE_RADIUS_M, axis_nms, circle_nms, rotated_nms  # noqa: E402
 
 CAR_SIZE = (1.9, 4.6)  # (width, length), metres
 AREA = 100.0
@@ -47,7 +47,7 @@ IOU_THRESHOLD = 0.3
 FIRST_CALL = """
 import time
 start = time.perf_counter()
-from sianms_cli.pipelines.nms import rotated_nms
+from sianms_cli.evaluation.nms import rotated_nms
 imported = time.perf_counter()
 import numpy as np
 rotated_nms(np.zeros((2, 2)), np.ones((2, 2)), np.zeros(2), np.ones(2), np.zeros(2), 0.3)
@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
           f"fastest of {args.repeat} (references: of {args.reference_repeat})")
     first_call_seconds()  # compiles into the cache, if this version has not been run yet
     imported, first = first_call_seconds()
-    print(f"fresh process: import sianms_cli.pipelines.nms {imported:.2f} s, first rotated_nms call {first:.2f} s")
+    print(f"fresh process: import sianms_cli.evaluation.nms {imported:.2f} s, first rotated_nms call {first:.2f} s")
     print(f"ms per call; {', '.join(AXIS_MODES)} are axis_nms's modes; numpy-pairs is numpy clipping of the "
           f"candidate pairs alone")
     columns = ["boxes", "kept", *AXIS_MODES, "rotated", "circle", "shapely", "numpy-pairs"]

@@ -10,7 +10,7 @@ the dataroot it was prepared from (recorded in its manifest; ``--dataroot`` over
   cameras gives two queries. Every row of the cache counts as a detection: the detector's,
   and in a training cache also the ground-truth boxes filled in for its misses.
 - **candidates**: the car detections of camera B in its overlap strip with A, the rule
-  siaNMS pairs by (:func:`sianms_cli.pipelines.matching.overlap_columns`: B's image columns
+  siaNMS pairs by (:func:`sianms_cli.evaluation.matching.overlap_columns`: B's image columns
   whose rays at infinity A sees; a box counts when its horizontal extent meets that band),
   optionally at least ``--candidate-min-height`` px tall. A query whose true match is not a
   candidate (outside the strip) is counted apart and left out.
@@ -52,7 +52,7 @@ from sianms_cli.io import write_json
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.rigs import sample_rigs
 from sianms_cli.nuscenes.sensors import read_image
-from sianms_cli.pipelines.matching import in_columns, overlap_columns
+from sianms_cli.evaluation.matching import in_columns, overlap_columns
 
 DETECTION_COLUMNS = ["detection_id", "sample_token", "sample_data_token", "camera", "x1", "y1", "x2", "y2", "class",
                      "instance_token", "image_width", "image_height"]

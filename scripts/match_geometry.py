@@ -19,7 +19,7 @@ import numpy as np
 
 from sianms_cli.errors import SianmsError
 from sianms_cli.io import describe_os_error, read_json
-from sianms_cli.pipelines.methods import SIANMS, AllBoxes, gate_passed, match_singles
+from sianms_cli.evaluation.methods import SIANMS, AllBoxes, gate_passed, match_singles
 
 
 def match_geometry(boxes: AllBoxes) -> dict[str, dict[str, float]]:
@@ -44,7 +44,7 @@ def demo_boxes(folder: Path) -> AllBoxes:
     """The boxes of a `sianms demo` folder's evaluation."""
     from sianms_cli.metrics.dataset import eval_split
     from sianms_cli.nuscenes.loader import NuScenesDB
-    from sianms_cli.pipelines.finish import read_boxes
+    from sianms_cli.evaluation.finish import read_boxes
 
     demo, evaluation = read_json(folder / "demo.json"), read_json(folder / "eval" / "eval.json")
     if not (isinstance(demo, dict) and demo.get("complete") and isinstance(evaluation, dict)

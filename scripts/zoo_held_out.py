@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from sianms_cli.io import write_json
-from sianms_cli.pipelines.inference import FPointNetPredictor
+from sianms_cli.evaluation.inference import FPointNetPredictor
 from sianms_cli.training.fpointnet import FPointNetConfig, validate
 from sianms_cli.training.run import checkpoint_file, load_checkpoint
 

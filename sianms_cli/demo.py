@@ -232,7 +232,7 @@ def _fpointnet(config: DemoConfig, out: Path, progress: Progress, workers: int) 
 
 
 def _eval(config: DemoConfig, out: Path, progress: Progress, workers: int) -> None:
-    from sianms_cli.pipelines.job import EvalConfig, run
+    from sianms_cli.evaluation.job import EvalConfig, run
 
     run(EvalConfig(dataroot=str(out / FOLDERS["synth"]), version=config.version, split=config.splits[1],
                    cache=str(out / FOLDERS["prepare-val"]), siamese=str(out / FOLDERS["siamese"]),
@@ -340,7 +340,7 @@ def foreign_stage_entry(stage: str, folder: Path) -> Path | None:
         from sianms_cli.training.run import foreign_run_entry
         return foreign_run_entry(folder)
     if stage == "eval":
-        from sianms_cli.pipelines.job import foreign_eval_entry
+        from sianms_cli.evaluation.job import foreign_eval_entry
         return foreign_eval_entry(folder)
     from sianms_cli.reporting.report import foreign_entry, is_report_folder
     return foreign_entry(folder) if is_report_folder(folder) else folder

@@ -33,7 +33,7 @@ from types import ModuleType
 from typing import Any, Literal, MutableMapping
 
 PACKAGE = Path(__file__).resolve().parent
-KERNEL_PACKAGES = ("metrics", "pipelines", "synth")
+KERNEL_PACKAGES = ("evaluation", "metrics", "synth")
 """The subpackages whose modules hold ``cache=True`` kernels (numba caches beside each source file)."""
 
 

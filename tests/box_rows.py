@@ -1,8 +1,8 @@
-"""Hand-written rows of an evaluation's boxes as :class:`~sianms_cli.pipelines.methods.AllBoxes`."""
+"""Hand-written rows of an evaluation's boxes as :class:`~sianms_cli.evaluation.methods.AllBoxes`."""
 
 import numpy as np
 
-from sianms_cli.pipelines.methods import AllBoxes
+from sianms_cli.evaluation.methods import AllBoxes
 
 
 def all_boxes(rows: list[tuple]) -> AllBoxes:

@@ -50,7 +50,7 @@ def eval_cli(
     Scenes are evaluated one by one and kept, so a killed run resumes where it stopped;
     results, metrics and the table are written once every scene is done.
     """
-    from sianms_cli.pipelines.job import EvalConfig, run
+    from sianms_cli.evaluation.job import EvalConfig, run
 
     config = EvalConfig(
         dataroot=str(dataroot), version=version, split=split, cache=str(cache), siamese=str(siamese),

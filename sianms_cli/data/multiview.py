@@ -2,7 +2,7 @@
 
 For every row of the cache's ``pairs/`` shard (a reference detection in ``camera_a``, the
 positive in ``camera_b``, one instance) whose class is trained, the union frustum exactly as
-``sianms eval`` builds a siaNMS match's (:mod:`sianms_cli.pipelines.multiview`, the cache's
+``sianms eval`` builds a siaNMS match's (:mod:`sianms_cli.evaluation.multiview`, the cache's
 sweeps and depth window; docs/methods.md#multi-view-frustums), in the single frustums'
 conventions (:mod:`.frustums`): ``label`` 1 for the union points inside the reference
 detection's ground-truth box, tested in camera_a's frame; box centre and heading in the frame
@@ -159,7 +159,7 @@ def union_frustums(db, cache: str | Path, shard: str, selection: FrustumSelectio
         selection: the run's classes and minimum 2-D box height.
         settings: the LiDAR settings and ``max_distance``.
     """
-    from sianms_cli.pipelines.multiview import pair_geometry, pair_union
+    from sianms_cli.evaluation.multiview import pair_geometry, pair_union
     from sianms_cli.prepare.sample import lidar_points_global, scene_records
 
     cache = Path(cache)

@@ -196,7 +196,7 @@ def rotated_iou_matrix(boxes_a: np.ndarray, boxes_b: np.ndarray) -> np.ndarray:
     """(N, M) exact rotated BEV IoU of every box of ``boxes_a (N, 5)`` with every box of ``boxes_b (M, 5)``.
 
     Clips all N x M pairs at once (about 1 kB of temporaries per pair): meant for small sets
-    and tests; NMS over many boxes clips only candidate pairs (:mod:`sianms_cli.pipelines.nms`).
+    and tests; NMS over many boxes clips only candidate pairs (:mod:`sianms_cli.evaluation.nms`).
     """
     corners_a, corners_b = bev_corners(*split_boxes(boxes_a)), bev_corners(*split_boxes(boxes_b))
     rows, columns = np.divmod(np.arange(len(corners_a) * len(corners_b)), len(corners_b))

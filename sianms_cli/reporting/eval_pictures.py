@@ -25,7 +25,7 @@ from sianms_cli.geometry.quaternion import quat_yaw
 from sianms_cli.geometry.transforms import apply_transform, invert_transform, make_transform
 from sianms_cli.io import atomic_file
 from sianms_cli.nuscenes.loader import NuScenesDB
-from sianms_cli.pipelines.methods import AllBoxes, split_name
+from sianms_cli.evaluation.methods import AllBoxes, split_name
 
 EXTENT_M = 50.0
 MAX_POINTS = 40_000  # drawn per panel (a stride through the sweep), so a picture stays light

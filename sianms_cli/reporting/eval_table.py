@@ -15,7 +15,7 @@ import math
 from typing import Any, Mapping
 
 from sianms_cli.metrics.report import MetricsReport
-from sianms_cli.pipelines.methods import IOU_METHODS, split_name
+from sianms_cli.evaluation.methods import IOU_METHODS, split_name
 
 TABLE_CLASS = "car"  # Table I is car only (paper §V-B: siaNMS matches cars)
 REGIONS_SHOWN = (("all", "All"), ("overlap", "Overlap"))
@@ -151,7 +151,7 @@ def table_markdown(table: Mapping[str, Any]) -> str:
 
 
 def reid_wrong_cells(figures: Mapping[str, Any]) -> list[str]:
-    """What went wrong in a matcher's pairs (:func:`~sianms_cli.pipelines.finish.reidentification`);
+    """What went wrong in a matcher's pairs (:func:`~sianms_cli.evaluation.finish.reidentification`);
     "-" for a figure an older evaluation did not record, or one the matcher has not (a gate)."""
     return [str(figures.get(name, "-")) for name in REID_WRONG_FIGURES]
 

@@ -63,7 +63,7 @@ REPORT_ENTRIES = frozenset({REPORT_FILE, MARKDOWN_FILE, HTML_FILE, PR_CURVES_FIL
 The folder is built in a staging folder beside it (io.build_folder), so nothing else, hidden or not, is ever
 left inside it: any other entry is the user's and ``--overwrite`` must not delete it."""
 DEFAULT_FOLDER = "report"  # inside the evaluation folder
-EVAL_KIND = "sianms-eval"  # eval.json's "kind": sianms_cli.pipelines.job.KIND, not imported since job loads torch
+EVAL_KIND = "sianms-eval"  # eval.json's "kind": sianms_cli.evaluation.job.KIND, not imported since job loads torch
 
 DEFAULT_ALLOWANCES: Mapping[str, float] = MappingProxyType({
     "ap": 0.5,     # AP points (%): a drop of more than half a point regresses

@@ -114,7 +114,7 @@ def read_runs(sources: Sequence[str]) -> list[dict[str, Any]]:
 
 def run_thresholds(source: str) -> dict[str, Any] | None:
     """The thresholds an evaluation folder used and where each came from (its table.json's ``thresholds``,
-    :func:`~sianms_cli.pipelines.calibration.thresholds_used`); None for a report.json or an evaluation from
+    :func:`~sianms_cli.evaluation.calibration.thresholds_used`); None for a report.json or an evaluation from
     before they were recorded."""
     path = Path(source) / "table.json"
     if not Path(source).is_dir():

@@ -8,7 +8,7 @@ import pytest
 
 from sianms_cli.demo import DemoConfig
 from sianms_cli.errors import SEED_LIMIT, SianmsError
-from sianms_cli.pipelines.job import EvalConfig
+from sianms_cli.evaluation.job import EvalConfig
 from sianms_cli.prepare.config import MAX_ROI_SIZE, PrepareConfig
 from sianms_cli.synth.generate import SynthConfig
 from sianms_cli.training.fpointnet import FPointNetConfig
@@ -77,7 +77,7 @@ def test_eval_refuses_a_class_siamese_matching_cannot_have():
 
 
 def test_eval_checks_the_device_before_loading_anything():
-    from sianms_cli.pipelines.job import load_models
+    from sianms_cli.evaluation.job import load_models
 
     with pytest.raises(SianmsError, match="--device must be auto, cpu, cuda or cuda:N, got 'tpu'"):
         load_models(CONFIGS["eval"](device="tpu"))

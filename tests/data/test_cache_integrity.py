@@ -19,7 +19,7 @@ from sianms_cli.data.index import build_pair_index
 from sianms_cli.data.schemas import cache_schemas
 from sianms_cli.data.siamese import iter_scenes
 from sianms_cli.errors import DataFormatError
-from sianms_cli.pipelines.scene import SceneEvaluator
+from sianms_cli.evaluation.scene import SceneEvaluator
 
 UNREADABLE = "not a readable Parquet file; rerun `sianms prepare` on the cache to rebuild it"
 
@@ -213,7 +213,7 @@ def test_a_shard_arrow_cannot_open_is_named_in_the_os_error_line(tmp_path):
 
 
 def test_a_damaged_scene_table_of_an_evaluation_is_named_with_what_to_do(tmp_path):
-    from sianms_cli.pipelines.finish import read_boxes
+    from sianms_cli.evaluation.finish import read_boxes
 
     table = tmp_path / "scene-0103.parquet"
     table.write_bytes(b"PAR1 not a whole file")

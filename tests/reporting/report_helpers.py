@@ -2,7 +2,7 @@
 an HTML reader of their tables.
 
 Every figure is known (eval.json, table.json, metrics and details files with the fields
-`sianms eval` writes); the report of a real evaluation is checked in tests/pipelines/test_eval_job.py.
+`sianms eval` writes); the report of a real evaluation is checked in tests/evaluation/test_eval_job.py.
 """
 
 from __future__ import annotations

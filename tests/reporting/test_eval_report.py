@@ -1,7 +1,7 @@
 """`sianms report` as a library: Table I of one evaluation, the regression gate against a baseline, the outputs.
 
 The evaluation folders are written by hand (report_helpers.make_eval), so every figure is known;
-the report of a real evaluation is checked in tests/pipelines/test_eval_job.py.
+the report of a real evaluation is checked in tests/evaluation/test_eval_job.py.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """data/multiview.py: the union training frustums of `sianms train fpointnet --multiview`, checked
-against the pair geometry of `sianms eval` (pipelines/multiview.py) on the tiny mini's cache."""
+against the pair geometry of `sianms eval` (evaluation/multiview.py) on the tiny mini's cache."""
 
 import json
 import shutil
@@ -15,7 +15,7 @@ from sianms_cli.geometry.boxes import points_in_boxes
 from sianms_cli.geometry.frustum import rotate_to_frustum
 from sianms_cli.geometry.transforms import sensor_to_global
 from sianms_cli.nuscenes.loader import NuScenesDB
-from sianms_cli.pipelines.multiview import pair_geometry, pair_union
+from sianms_cli.evaluation.multiview import pair_geometry, pair_union
 from sianms_cli.prepare.sample import lidar_points_global, scene_records
 
 ALL = FrustumSelection(min_box_height=0)
@@ -41,7 +41,7 @@ def _frame(records, position, channel):
 
 
 def _pair_by_hand(db, cache, pair, max_distance):
-    """One pairs/ row's union frustum, straight from pipelines/multiview.py: (overlap, inside, union
+    """One pairs/ row's union frustum, straight from evaluation/multiview.py: (overlap, inside, union
     points in the union frame, points in camera_a's frame, angle, GT box row of the reference)."""
     detections = pq.read_table(next((cache / "detections").glob("*.parquet"))).to_pandas().set_index("detection_id")
     boxes = pq.read_table(next((cache / "frustums").glob("*.parquet"))).to_pandas().set_index("detection_id")

@@ -15,7 +15,7 @@ from devkit_venv import DEVKIT_MARKS, DEVKIT_PYTHON, REPO_ROOT
 from sianms_cli.metrics.evaluate import evaluate
 from sianms_cli.metrics.results import read_results
 from sianms_cli.nuscenes.loader import NuScenesDB
-from sianms_cli.pipelines.job import EvalConfig, run
+from sianms_cli.evaluation.job import EvalConfig, run
 
 DUMP_SCRIPT = REPO_ROOT / "scripts" / "devkit_dump.py"
 pytestmark = DEVKIT_MARKS

@@ -1,4 +1,4 @@
-"""pipelines/nms.py: hand-made kept sets, the threshold's edge, and a brute-force greedy reference."""
+"""evaluation/nms.py: hand-made kept sets, the threshold's edge, and a brute-force greedy reference."""
 
 import math
 
@@ -7,7 +7,7 @@ import pytest
 
 from sianms_cli.errors import SianmsError
 from sianms_cli.geometry.bev import AXIS_MODES, axis_iou_matrix, rotated_iou_matrix
-from sianms_cli.pipelines.nms import CIRCLE_RADIUS_M, axis_nms, circle_nms, rotated_nms
+from sianms_cli.evaluation.nms import CIRCLE_RADIUS_M, axis_nms, circle_nms, rotated_nms
 
 
 def boxes(*rows):

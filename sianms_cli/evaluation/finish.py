@@ -33,13 +33,13 @@ from sianms_cli.metrics.results import results_from_boxes, write_results
 from sianms_cli.geometry.quaternion import yaw_to_quat
 from sianms_cli.io import write_json, write_text
 from sianms_cli.nuscenes.loader import NuScenesDB
-from sianms_cli.pipelines.calibration import (THRESHOLDS_FILE, Calibration, calibrated_best, choose_dis_thr,
+from sianms_cli.evaluation.calibration import (THRESHOLDS_FILE, Calibration, calibrated_best, choose_dis_thr,
                                              thresholds_record, thresholds_used)
-from sianms_cli.pipelines.matching import pair_quality
-from sianms_cli.pipelines.methods import (GATED_SIANMS, HYBRID, MATCHERS, ORACLE, SIANMS, AllBoxes, kept_matches,
+from sianms_cli.evaluation.matching import pair_quality
+from sianms_cli.evaluation.methods import (GATED_SIANMS, HYBRID, MATCHERS, ORACLE, SIANMS, AllBoxes, kept_matches,
                                          match_kind, select, split_name)
-from sianms_cli.pipelines.scene import BOXES_SCHEMA, VECTOR_WIDTHS
-from sianms_cli.pipelines.scoring import RegionFigures
+from sianms_cli.evaluation.scene import BOXES_SCHEMA, VECTOR_WIDTHS
+from sianms_cli.evaluation.scoring import RegionFigures
 from sianms_cli.progress import Progress
 
 REGIONS = ("all", "overlap", "overlap:*")

@@ -16,9 +16,9 @@ from typer.testing import CliRunner
 
 from sianms_cli.cli import app
 from sianms_cli.errors import DataFormatError, SianmsError
-from sianms_cli.pipelines.calibration import THRESHOLDS_FILE, check_calibration, choose_dis_thr, read_calibration
-from sianms_cli.pipelines.job import EvalConfig, run
-from sianms_cli.pipelines.methods import split_name
+from sianms_cli.evaluation.calibration import THRESHOLDS_FILE, check_calibration, choose_dis_thr, read_calibration
+from sianms_cli.evaluation.job import EvalConfig, run
+from sianms_cli.evaluation.methods import split_name
 from sianms_cli.training.run import load_checkpoint
 
 SWEEP = "0.05,0.1,0.2,0.5,0.7"

@@ -15,8 +15,8 @@ from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
 from sianms_cli.metrics.algo import calc_ap
 from sianms_cli.metrics.evaluate import read_details
 from sianms_cli.metrics.results import read_results
-from sianms_cli.pipelines.job import EvalConfig, claim_output, run
-from sianms_cli.pipelines.methods import METHODS
+from sianms_cli.evaluation.job import EvalConfig, claim_output, run
+from sianms_cli.evaluation.methods import METHODS
 from sianms_cli.progress import SILENT
 from sianms_cli.reporting.eval_table import format_cell
 from sianms_cli.reporting.report import SCHEMA as REPORT_SCHEMA, ReportConfig, run as run_report
@@ -174,7 +174,7 @@ NEW_CONFIG = {"seed": 1, "split_scenes": ["scene-0001"]}  # another seed: the sc
 
 def stale_evaluation(out):
     """A hand-made evaluation folder of :data:`STALE_CONFIG` holding what `sianms eval` and
-    `sianms report EVAL` write there (as a real one, tests/pipelines' ``evaluated``, shows)."""
+    `sianms report EVAL` write there (as a real one, tests/evaluation' ``evaluated``, shows)."""
     (out / "scenes").mkdir(parents=True)
     (out / "eval.json").write_text(json.dumps({"kind": "sianms-eval", "config": STALE_CONFIG, "complete": True,
                                                "pictures": ["0123abcd.png"]}))
@@ -257,7 +257,7 @@ def test_scenes_run_on_one_torch_thread_in_this_process_too(eval_inputs, tmp_pat
     import torch
 
     from sianms_cli import processes
-    from sianms_cli.pipelines import job
+    from sianms_cli.evaluation import job
 
     seen = []
     write_scene = job.write_scene
@@ -296,7 +296,7 @@ def test_a_nan_in_the_cache_is_blamed_on_the_cache_file(eval_inputs, tmp_path):
 def test_a_folder_claimed_by_a_run_killed_at_once_is_still_the_evaluations(tmp_path, monkeypatch):
     """eval.json is written before the scenes' folder: a kill between the two had left a folder
     that no later run, --overwrite or not, would take as an evaluation's."""
-    from sianms_cli.pipelines import job
+    from sianms_cli.evaluation import job
 
     def interrupted(path):
         raise KeyboardInterrupt
@@ -346,7 +346,7 @@ def test_a_cache_the_encoder_cannot_take_is_refused_before_anything_is_written(e
     """ROI features of another --roi-size were refused only in the first scene, after eval.json and
     scenes/ were written: the rerun with the right cache then met 'another config'."""
     from sianms_cli.data.siamese import cache_feature_shape
-    from sianms_cli.pipelines.job import check_feature_shape
+    from sianms_cli.evaluation.job import check_feature_shape
 
     check_feature_shape(Path(eval_inputs.cache), cache_feature_shape(eval_inputs.cache), str(eval_inputs.siamese))
     with pytest.raises(DataFormatError, match=r"manifest.json: field 'config.roi_size': ROI features of shape "
@@ -367,7 +367,7 @@ def test_a_cache_the_encoder_cannot_take_is_refused_before_anything_is_written(e
 def test_a_hand_edited_fpointnet_checkpoint_is_named_with_its_field(eval_inputs, edit, field):
     """Each of these had ended eval in a traceback (ValueError, TypeError, IndexError, or a matrix
     product of mismatched shapes)."""
-    from sianms_cli.pipelines.inference import FPointNetPredictor
+    from sianms_cli.evaluation.inference import FPointNetPredictor
     from sianms_cli.training.run import checkpoint_file, load_checkpoint
 
     path = checkpoint_file(eval_inputs.fpointnet)
@@ -381,7 +381,7 @@ def test_a_hand_edited_fpointnet_checkpoint_is_named_with_its_field(eval_inputs,
 def test_a_kill_while_overwrite_deletes_leaves_an_evaluation_to_resume_not_a_complete_one(tmp_path, monkeypatch):
     """The deletions had run under the old eval.json saying "complete": killed among them, the
     folder said complete over deleted files, and a rerun of the old config took it as finished."""
-    from sianms_cli.pipelines import job
+    from sianms_cli.evaluation import job
 
     out = stale_evaluation(tmp_path / "eval")
     deleted = []
@@ -459,7 +459,7 @@ def _first_box(evaluated):
 ])
 def test_a_scene_table_missing_a_column_is_named_not_read_as_nulls(evaluated, tmp_path, edit, field, problem):
     """A dropped column had been read as all nulls: eval finished "complete" with no box."""
-    from sianms_cli.pipelines.finish import read_boxes
+    from sianms_cli.evaluation.finish import read_boxes
 
     edited, _ = _edited_scene_table(evaluated, tmp_path, edit)
     with pytest.raises(DataFormatError) as raised:
@@ -479,7 +479,7 @@ def test_a_scene_table_missing_a_column_is_named_not_read_as_nulls(evaluated, tm
     ("yaw", float("nan"), "a finite number for a box"),
 ])
 def test_a_bad_value_in_a_scene_table_is_named_by_file_row_and_field(evaluated, tmp_path, field, value, expected):
-    from sianms_cli.pipelines.finish import read_boxes
+    from sianms_cli.evaluation.finish import read_boxes
 
     row = _first_box(evaluated)
     edited, table = _edited_scene_table(evaluated, tmp_path, _with_value(field, row, value))

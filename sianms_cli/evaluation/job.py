@@ -46,12 +46,12 @@ from sianms_cli.io import (atomic_file, exclusive_lock, make_folder, partial_of,
                            try_lock, write_json)
 from sianms_cli.nuscenes.fingerprint import dataset_fingerprint
 from sianms_cli.nuscenes.loader import NuScenesDB
-from sianms_cli.pipelines.calibration import Calibration, check_calibration, margins_midpoint, read_calibration
-from sianms_cli.pipelines.finish import broken_rows, finish
-from sianms_cli.pipelines.inference import FPointNetPredictor
-from sianms_cli.pipelines.methods import (HYBRID, IOU_METHODS, MATCHERS, METHODS, parse_methods, parse_thresholds,
+from sianms_cli.evaluation.calibration import Calibration, check_calibration, margins_midpoint, read_calibration
+from sianms_cli.evaluation.finish import broken_rows, finish
+from sianms_cli.evaluation.inference import FPointNetPredictor
+from sianms_cli.evaluation.methods import (HYBRID, IOU_METHODS, MATCHERS, METHODS, parse_methods, parse_thresholds,
                                           split_name)
-from sianms_cli.pipelines.scene import SceneEvaluator, SceneSettings
+from sianms_cli.evaluation.scene import SceneEvaluator, SceneSettings
 from sianms_cli.prepare.job import parse_shard, split_scenes
 from sianms_cli.processes import TASK_TORCH_THREADS, task_torch_threads, worker_pool
 from sianms_cli.progress import SILENT, Progress

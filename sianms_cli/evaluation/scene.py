@@ -42,8 +42,8 @@ from sianms_cli.geometry.rig import CameraRig
 from sianms_cli.geometry.transforms import sensor_to_global
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.rigs import sample_rigs
-from sianms_cli.pipelines.inference import FPointNetPredictor, GlobalBoxes, frustum_boxes_to_global
-from sianms_cli.pipelines.matching import (
+from sianms_cli.evaluation.inference import FPointNetPredictor, GlobalBoxes, frustum_boxes_to_global
+from sianms_cli.evaluation.matching import (
     allowed_pairs,
     assign,
     in_columns,
@@ -51,7 +51,7 @@ from sianms_cli.pipelines.matching import (
     overlap_columns,
     pair_distances,
 )
-from sianms_cli.pipelines.multiview import pair_geometry, pair_union
+from sianms_cli.evaluation.multiview import pair_geometry, pair_union
 from sianms_cli.prepare.sample import SceneRecords, lidar_points_global, scene_records
 
 SINGLE, SIANMS, ORACLE = "single", "sianms", "oracle"

@@ -30,12 +30,12 @@ from typing import Any
 from sianms_cli.errors import DataFormatError, SianmsError
 from sianms_cli.io import read_json, sha256_of
 from sianms_cli.json_stream import is_finite_number
-from sianms_cli.pipelines.methods import IOU_METHODS, PAPER_NMS_IOU, split_name
+from sianms_cli.evaluation.methods import IOU_METHODS, PAPER_NMS_IOU, split_name
 
 THRESHOLDS_FILE = "thresholds.json"
 KIND = "sianms-thresholds"
 SCHEMA_VERSION = 1
-EVAL_KIND = "sianms-eval"  # pipelines.job.KIND, not imported: job imports this module
+EVAL_KIND = "sianms-eval"  # evaluation.job.KIND, not imported: job imports this module
 
 CHOSEN_ON_FIELDS = ("version", "split", "split_scenes", "dataset_sha256", "cache_sha256", "siamese_sha256",
                     "fpointnet_sha256", "sianms_classes", "max_distance", "axis_mode", "nms_sweep", "methods")

@@ -3,7 +3,7 @@
 import numpy as np
 
 from sianms_cli.metrics.boxes import LABEL, empty_boxes
-from sianms_cli.pipelines.scoring import duplicates, near_ground_truth
+from sianms_cli.evaluation.scoring import duplicates, near_ground_truth
 
 
 def boxes(rows):

@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from sianms_cli.pipelines.finish import reidentification
-from sianms_cli.pipelines.methods import gate_passed, select, single_rows
+from sianms_cli.evaluation.finish import reidentification
+from sianms_cli.evaluation.methods import gate_passed, select, single_rows
 
 from box_rows import all_boxes
 

@@ -106,7 +106,7 @@ def split_name(method: str) -> tuple[str, float | None]:
 
 def nms_keep(boxes: AllBoxes, rows: np.ndarray, kind: str, threshold: float | None, axis_mode: str) -> np.ndarray:
     """The subset of ``rows`` an NMS keeps, per sample and class; sorted."""
-    from sianms_cli.pipelines import nms
+    from sianms_cli.evaluation import nms
 
     if len(rows) == 0:
         return rows

@@ -7,7 +7,7 @@ import pytest
 
 from sianms_cli.geometry.frustum import rotate_to_frustum
 from sianms_cli.geometry.rig import CameraRig
-from sianms_cli.pipelines.matching import (
+from sianms_cli.evaluation.matching import (
     allowed_pairs,
     assign,
     in_columns,
@@ -16,7 +16,7 @@ from sianms_cli.pipelines.matching import (
     pair_distances,
     pair_quality,
 )
-from sianms_cli.pipelines.scene import SceneEvaluator
+from sianms_cli.evaluation.scene import SceneEvaluator
 
 K = np.array([[100.0, 0.0, 100.0], [0.0, 100.0, 50.0], [0.0, 0.0, 1.0]])  # 200 x 100 image, 90° HFOV
 

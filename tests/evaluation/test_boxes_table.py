@@ -1,4 +1,4 @@
-"""The per-scene boxes table of `sianms eval` (`pipelines/scene.py` writes it, `pipelines/finish.py`
+"""The per-scene boxes table of `sianms eval` (`evaluation/scene.py` writes it, `evaluation/finish.py`
 reads it): its vectors go through Parquet with their nulls, in a form every supported pyarrow reads."""
 
 import numpy as np
@@ -7,8 +7,8 @@ import pyarrow.parquet as pq
 import pytest
 
 from sianms_cli.errors import DataFormatError
-from sianms_cli.pipelines.finish import read_boxes
-from sianms_cli.pipelines.scene import BOXES_SCHEMA, vector_column
+from sianms_cli.evaluation.finish import read_boxes
+from sianms_cli.evaluation.scene import BOXES_SCHEMA, vector_column
 
 TRANSLATION = np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]])
 VALID = np.array([True, False, True])  # the middle box: a dismissed match, no box

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sianms_cli.geometry.frustum import points_in_frustum, rotate_to_frustum
-from sianms_cli.pipelines.multiview import (
+from sianms_cli.evaluation.multiview import (
     circle_exit,
     frustum_wedge,
     frustums_overlap,
