@@ -49,7 +49,7 @@ from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.splits import splits_for_version
 from sianms_cli.nuscenes.tables import SENSORS
 from sianms_cli.nuscenes.writer import DatasetWriter, attribute_token, category_token, make_token
-from sianms_cli.synth.rig import RIG_SINGAPORE, normalised_rig
+from sianms_cli.synth.nuscenes_rig import RIG_SINGAPORE, normalised_rig
 
 VERSION = "v1.0-trainval"
 SPLIT = "val"

@@ -50,7 +50,7 @@ from sianms_cli.data.siamese import cache_feature_shape
 from sianms_cli.errors import DataFormatError, SianmsError
 from sianms_cli.io import write_json
 from sianms_cli.nuscenes.loader import NuScenesDB
-from sianms_cli.nuscenes.rigs import sample_rigs
+from sianms_cli.nuscenes.sample_rigs import sample_rigs
 from sianms_cli.nuscenes.sensors import read_image
 from sianms_cli.evaluation.matching import in_columns, overlap_columns
 

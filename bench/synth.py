@@ -44,7 +44,7 @@ from sianms_cli.nuscenes.tables import CAMERA_CHANNELS
 from sianms_cli.synth import generate, lidar
 from sianms_cli.synth.generate import AZIMUTH_STEPS, SWEEPS_BETWEEN_KEYFRAMES, SynthConfig, run as run_synth
 from sianms_cli.synth.raycast import intersect_ground, intersect_parts
-from sianms_cli.synth.rig import FULL_IMAGE_SIZE, RIG_BOSTON, normalised_rig
+from sianms_cli.synth.nuscenes_rig import FULL_IMAGE_SIZE, RIG_BOSTON, normalised_rig
 from sianms_cli.synth.world import plan_scene
 
 

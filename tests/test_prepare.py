@@ -16,7 +16,7 @@ from sianms_cli.metrics.regions import centers_in_ego, overlap_bits, region_mask
 from sianms_cli.geometry.frustum import points_in_frustum, rotate_from_frustum
 from sianms_cli.geometry.boxes import points_in_boxes
 from sianms_cli.nuscenes.loader import NuScenesDB
-from sianms_cli.nuscenes.rigs import sample_rigs
+from sianms_cli.nuscenes.sample_rigs import sample_rigs
 from sianms_cli.prepare import sample as prepare_module
 from sianms_cli.prepare.config import PrepareConfig
 from sianms_cli.prepare.job import run as prepare

@@ -38,10 +38,10 @@ import pyarrow.compute as pc
 
 from sianms_cli.data.cache import decode_roi_features, read_shard_table, require_finite, roi_feature_shape
 from sianms_cli.data.frustum_dataset import require_point_lists
-from sianms_cli.geometry.rig import CameraRig
+from sianms_cli.geometry.camera_ring import CameraRig
 from sianms_cli.geometry.transforms import sensor_to_global
 from sianms_cli.nuscenes.loader import NuScenesDB
-from sianms_cli.nuscenes.rigs import sample_rigs
+from sianms_cli.nuscenes.sample_rigs import sample_rigs
 from sianms_cli.evaluation.inference import FPointNetPredictor, GlobalBoxes, frustum_boxes_to_global
 from sianms_cli.evaluation.matching import (
     allowed_pairs,

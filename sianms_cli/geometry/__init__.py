@@ -27,7 +27,7 @@ from sianms_cli.geometry.quaternion import (
     quat_yaw,
     yaw_to_quat,
 )
-from sianms_cli.geometry.rig import CameraRig
+from sianms_cli.geometry.camera_ring import CameraRig
 from sianms_cli.geometry.transforms import (
     apply_transform,
     global_to_sensor,

@@ -61,7 +61,7 @@ from sianms_cli.io import (check_outside_dataroot, check_writable_output, expand
                            write_files_together)
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.tables import check_version_name
-from sianms_cli.nuscenes.rigs import sample_rigs
+from sianms_cli.nuscenes.sample_rigs import sample_rigs
 from sianms_cli.progress import SILENT, Progress
 
 # --------------------------------------------------------------------------- command

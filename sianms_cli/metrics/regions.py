@@ -22,7 +22,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from sianms_cli.errors import SianmsError
-from sianms_cli.geometry.rig import CameraRig
+from sianms_cli.geometry.camera_ring import CameraRig
 from sianms_cli.nuscenes import overlap as dataset_overlap
 from sianms_cli.nuscenes.overlap import OverlapBits
 

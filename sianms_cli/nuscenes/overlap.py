@@ -4,11 +4,11 @@ One function decides it for every consumer, so they cannot drift apart: `sianms 
 (the ``overlap_pairs`` of each detection and the pairs' ``center_in_overlap``), `sianms info`
 (the cars' overlap share) and `sianms metrics` (the ``overlap`` regions). For a box of a sample:
 
-- the rig is the sample's (:func:`sianms_cli.nuscenes.rigs.sample_rigs`: the calibrated
+- the rig is the sample's (:func:`sianms_cli.nuscenes.sample_rigs.sample_rigs`: the calibrated
   cameras of its key frames);
 - its centre goes into the ego frame with the ego pose of the sample's LIDAR_TOP key frame
   (the pose the devkit measures ranges from);
-- :meth:`sianms_cli.geometry.rig.CameraRig.overlap_pairs` is the rule: the centre, in front
+- :meth:`sianms_cli.geometry.camera_ring.CameraRig.overlap_pairs` is the rule: the centre, in front
   of both cameras, projects inside both images of a contiguous pair.
 
 A sample without camera key frames or without a LIDAR_TOP key frame has no overlap.
@@ -23,10 +23,10 @@ import numpy as np
 
 from sianms_cli.errors import SianmsError
 from sianms_cli.geometry.quaternion import quat_to_matrix
-from sianms_cli.geometry.rig import CameraRig
+from sianms_cli.geometry.camera_ring import CameraRig
 from sianms_cli.nuscenes.keyframes import keyframe_rows, sensor_records
 from sianms_cli.nuscenes.loader import NuScenesDB
-from sianms_cli.nuscenes.rigs import sample_rigs
+from sianms_cli.nuscenes.sample_rigs import sample_rigs
 
 LIDAR_CHANNEL = "LIDAR_TOP"
 MAX_PAIRS = 64  # one bit each in a uint64

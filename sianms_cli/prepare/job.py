@@ -38,7 +38,7 @@ from sianms_cli.nuscenes.tables import CAMERA_CHANNELS
 from sianms_cli.processes import TASK_TORCH_THREADS, task_torch_threads, worker_pool
 from sianms_cli.progress import SILENT, Progress
 from sianms_cli.nuscenes.loader import NuScenesDB
-from sianms_cli.nuscenes.rigs import sample_rigs
+from sianms_cli.nuscenes.sample_rigs import sample_rigs
 from sianms_cli.nuscenes.splits import split_scene_names
 from sianms_cli.prepare.config import PrepareConfig
 from sianms_cli.prepare.sample import Preparer

@@ -36,7 +36,7 @@ from sianms_cli.detection2d.classes import detection_classes_of
 from sianms_cli.detection2d.detections import Detections2D, GroundTruth2D
 from sianms_cli.detection2d.detectors import build_detector
 from sianms_cli.detection2d.roi_features import roi_feature_shape, roi_features
-from sianms_cli.geometry.rig import CameraRig
+from sianms_cli.geometry.camera_ring import CameraRig
 from sianms_cli.geometry.transforms import apply_transform, global_to_sensor, sensor_to_global, transform_boxes
 from sianms_cli.nuscenes.keyframes import SensorRecords, keyframe_rows, sensor_records, sweep_rows
 from sianms_cli.nuscenes.loader import NuScenesDB

@@ -49,7 +49,7 @@ from sianms_cli.synth.conditions import Conditions, civil_dusk_hour, sample_cond
 from sianms_cli.synth.devkit_count import boxes_in_sensor_frame, count_points_in_boxes
 from sianms_cli.synth.lidar import scan_lidar, spray_behind
 from sianms_cli.synth.marker import MARKER_NAME, make_marker, read_marker
-from sianms_cli.synth.rig import (
+from sianms_cli.synth.nuscenes_rig import (
     CAMERA_TRIGGER_OFFSET_US,
     FULL_IMAGE_SIZE,
     LIDAR_CHANNEL,

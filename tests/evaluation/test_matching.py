@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sianms_cli.geometry.frustum import rotate_to_frustum
-from sianms_cli.geometry.rig import CameraRig
+from sianms_cli.geometry.camera_ring import CameraRig
 from sianms_cli.evaluation.matching import (
     allowed_pairs,
     assign,

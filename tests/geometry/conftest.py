@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sianms_cli.geometry.rig import CameraRig
+from sianms_cli.geometry.camera_ring import CameraRig
 
 # channel: (translation x, y, z), (rotation w, x, y, z), fx = fy, cx, cy. CAM_FRONT at full
 # precision; the other cameras as the reference table gives them (5 decimals).

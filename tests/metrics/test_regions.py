@@ -10,7 +10,7 @@ from sianms_cli.metrics.dataset import ego_poses, eval_split, ground_truth
 from sianms_cli.metrics.regions import centers_in_ego, overlap_bits, region_mask, resolve_regions
 from sianms_cli.geometry.transforms import apply_transform, invert_transform, make_transform
 from sianms_cli.nuscenes.overlap import box_overlap_pairs
-from sianms_cli.nuscenes.rigs import sample_rigs
+from sianms_cli.nuscenes.sample_rigs import sample_rigs
 
 PAIRS = ("CAM_FRONT|CAM_FRONT_RIGHT", "CAM_FRONT_RIGHT|CAM_BACK_RIGHT", "CAM_BACK_RIGHT|CAM_BACK",
          "CAM_BACK|CAM_BACK_LEFT", "CAM_BACK_LEFT|CAM_FRONT_LEFT", "CAM_FRONT_LEFT|CAM_FRONT")

@@ -9,7 +9,7 @@ from sianms_cli.errors import DataFormatError, SianmsError
 from sianms_cli.io import read_json
 from sianms_cli.nuscenes import loader
 from sianms_cli.nuscenes.loader import NuScenesDB
-from sianms_cli.nuscenes.rigs import sample_rigs
+from sianms_cli.nuscenes.sample_rigs import sample_rigs
 from sianms_cli.nuscenes.sensors import write_jpeg, write_pcd_bin
 from sianms_cli.nuscenes.tables import TABLE_NAMES
 

@@ -9,7 +9,7 @@ import pytest
 from sianms_cli.geometry.transforms import apply_transform, invert_transform, make_transform
 from sianms_cli.nuscenes.loader import NuScenesDB
 from sianms_cli.nuscenes.overlap import OverlapBits, box_overlap_pairs, centers_in_ego, lidar_ego_poses
-from sianms_cli.nuscenes.rigs import sample_rigs
+from sianms_cli.nuscenes.sample_rigs import sample_rigs
 
 VERSION = "v1.0-mini"
 

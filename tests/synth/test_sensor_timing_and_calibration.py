@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from sianms_cli.geometry.quaternion import quat_multiply, quat_to_matrix
-from sianms_cli.synth import rig
-from sianms_cli.synth.rig import (
+from sianms_cli.synth import nuscenes_rig as rig
+from sianms_cli.synth.nuscenes_rig import (
     CALIBRATION_RESIDUAL_DEG,
     CALIBRATION_RESIDUAL_M,
     CAMERA_TRIGGER_OFFSET_US,

@@ -1,6 +1,6 @@
 """The camera rig of each sample, built from the calibrated_sensor records of its key frames.
 
-A sample's rig is the :class:`~sianms_cli.geometry.rig.CameraRig` of the cameras that have a
+A sample's rig is the :class:`~sianms_cli.geometry.camera_ring.CameraRig` of the cameras that have a
 key frame in that sample (the devkit's ``sample['data']``, where a later key frame of the same
 channel wins), with their calibrated_sensor extrinsics and intrinsics and the image size of the
 key-frame sample_data. Real logs calibrate once per scene, so a dataset holds few distinct
@@ -14,7 +14,7 @@ from typing import Sequence
 import numpy as np
 
 from sianms_cli.errors import DataFormatError
-from sianms_cli.geometry.rig import CameraRig
+from sianms_cli.geometry.camera_ring import CameraRig
 from sianms_cli.nuscenes.loader import NuScenesDB
 
 

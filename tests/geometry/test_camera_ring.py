@@ -3,7 +3,7 @@ import pytest
 
 from sianms_cli.errors import SianmsError
 from sianms_cli.geometry.projection import view_points
-from sianms_cli.geometry.rig import CameraRig
+from sianms_cli.geometry.camera_ring import CameraRig
 from sianms_cli.geometry.transforms import apply_transform, invert_transform
 
 RING = (
