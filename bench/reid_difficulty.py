@@ -1,6 +1,6 @@
 """How hard cross-camera re-identification is in a prepared cache: top-1 accuracy of plain matchers.
 
-A figure that describes the world, not a target to tune it to (issue 11). Over a
+A figure that describes the world, not a target to tune it to. Over a
 `sianms prepare` cache (its detections, their ground-truth instances and ROI features) and
 the dataroot it was prepared from (recorded in its manifest; ``--dataroot`` overrides):
 

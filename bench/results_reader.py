@@ -12,7 +12,7 @@ our writer prints them. Then reads it in a fresh process per reader, ``--repeat`
 Prints each reader's best wall time, the ratio, the peak RSS of each reading process, and
 whether both gave the same tokens and the same table to the bit (exit 1 if not). The
 reference commit 58db60f is the reader before the collector was paused during decoding
-(issue 10 asks for 3x on 1.2 M boxes). Files of at least ``SCAN_MIN_BYTES`` (64 MiB) go
+(the target: 3x on 1.2 M boxes). Files of at least ``SCAN_MIN_BYTES`` (64 MiB) go
 through the compiled scanner (:mod:`sianms_cli.metrics.results_scan`), whose first read
 after an install compiles it (about 6 s, cached): ``--repeat 2`` or more keeps the best.
 

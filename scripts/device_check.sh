@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 9's GPU checks in one call, well inside 10 minutes on one H200: the opt-in CUDA tests
+# The GPU checks in one call, well inside 10 minutes on one H200: the opt-in CUDA tests
 # (both trainings in mixed precision, an fp16 resume with its loss scale); training throughput
 # per precision (network steps alone, then whole siamese epochs); both trainings under a
 # one-rank torchrun on NCCL beside the same run in one process; whole F-PointNets epochs at the

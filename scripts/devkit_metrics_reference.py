@@ -105,7 +105,7 @@ def _load(table_root: Path, name: str) -> list[dict]:
         return json.load(handle)
 
 
-# calibrated_sensor of the six cameras and the LiDAR, two real rigs (reference §4, sets A and B):
+# calibrated_sensor of the six cameras and the LiDAR, two real rigs (docs/synthetic_world.md#rig, sets A and B):
 # channel -> (translation, rotation w x y z, fx = fy, cx, cy).
 RIGS = {
     "scene-0061": {
@@ -249,7 +249,7 @@ def _write_scene(tables: dict[str, list[dict]], rng: random.Random, scene: str, 
             first = rng.randrange(0, count - 2)
             last = first if j == 0 and category == "vehicle.car" else rng.randrange(first + 1, count)
             radius = rng.uniform(3, 55) if rng.random() < 0.85 else rng.uniform(55, 75)
-            if rng.random() < 0.4:  # near the middle of a camera-overlap sector (reference §9.7-2)
+            if rng.random() < 0.4:  # near the middle of a camera-overlap sector
                 angle = math.radians(rng.choice([28, -28, 83, -83, 139, -139]) + rng.uniform(-3, 3))
                 radius = rng.uniform(8, 45)
             else:

@@ -1,4 +1,4 @@
-"""Issue 8's targets for the synthetic world, over several draws of it.
+"""The synthetic world's targets (docs/synthetic_world.md), over several draws of it.
 
     python scripts/world_draws.py INFO.json [INFO.json ...]
 

@@ -1,4 +1,4 @@
-"""scripts/world_draws.py: issue 8's targets over several `sianms info` files (draws of the world)."""
+"""scripts/world_draws.py: the world's targets over several `sianms info` files (draws of the world)."""
 
 from __future__ import annotations
 

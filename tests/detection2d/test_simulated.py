@@ -47,7 +47,7 @@ def test_misses_rise_with_occlusion_truncation_and_distance():
     assert base > 0.85
     assert recall(ground_truth(10, occlusion=0.6))[0] < base - 0.3
     assert recall(ground_truth(10, truncation=0.7))[0] < base - 0.3
-    far = ground_truth(10, height=2200 / 70, distance=70.0)  # a car at 70 m (reference §9.8-5)
+    far = ground_truth(10, height=2200 / 70, distance=70.0)  # a car at 70 m
     assert recall(far)[0] < base - 0.2
 
 

@@ -1,4 +1,4 @@
-"""Real nuScenes calibration (reference nuscenes.md section 4, Set A: log n015, scene-0061)."""
+"""Real nuScenes calibration (docs/synthetic_world.md#rig, set A: log n015, scene-0061)."""
 
 from __future__ import annotations
 

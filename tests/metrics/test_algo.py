@@ -1,4 +1,4 @@
-"""The metric core against the devkit's own unit tests (reference §7) and a slow port of the
+"""The metric core against the devkit's own unit tests and a slow port of the
 devkit's ``accumulate`` (devkit_port.py), at threshold and tie edges."""
 
 from __future__ import annotations

@@ -47,7 +47,7 @@ def test_corners_of_a_box_and_its_flip_are_the_same_set():
     center = torch.tensor([[1.0, 0.5, 10.0]], dtype=torch.float64)
     lwh = torch.tensor([[4.0, 2.0, 1.5]], dtype=torch.float64)
     corners = box_corners(center, torch.tensor([0.0], dtype=torch.float64), lwh)[0]
-    # heading 0: corner 0 is (+l/2, +h/2, +w/2), corner 6 is its opposite (models.md §1.9)
+    # heading 0: corner 0 is (+l/2, +h/2, +w/2), corner 6 is its opposite (docs/methods.md#box-corners)
     assert corners[0].tolist() == [3.0, 1.25, 11.0] and corners[6].tolist() == [-1.0, -0.25, 9.0]
     assert torch.allclose((corners[0] + corners[6]) / 2, center[0])
     flipped = box_corners(center, torch.tensor([math.pi], dtype=torch.float64), lwh)[0]
