@@ -35,7 +35,8 @@ def test_output_shapes(model, points):
 
 
 def test_v1_has_the_original_size_and_box_output_width(model):
-    # 3 + 2 NH + 4 NS = 3 + 24 + 12 = 39 outputs with NS = 3 (docs/methods.md#heading-bins-and-size-clusters); ~1.6 M parameters.
+    # 3 + 2 NH + 4 NS = 3 + 24 + 12 = 39 outputs with NS = 3 (docs/methods.md#heading-bins-and-size-clusters);
+    # ~1.6 M parameters.
     assert model.box_head[-1].out_features == 39
     parameters = sum(p.numel() for p in model.parameters())
     assert 1.5e6 < parameters < 1.8e6
