@@ -66,8 +66,9 @@ def test_synth_runs_with_no_writable_package_nor_home(tmp_path, temporary):
     (tmp_path / "home").mkdir()
     (tmp_path / "tmp").mkdir()
     work = Path("/mnt")  # this test's folder, mounted where the read-only temporary folders do not hide it
-    hide = "".join(f" && mount -t tmpfs -o ro,size=64k tmpfs {folder}" for folder in ("/tmp", "/var/tmp")
-                   if temporary == "read-only" and Path(folder).is_dir())
+    # Made read-only in place, not hidden: the checkout or the venv may lie in one (CI's venv is in /tmp).
+    hide = "".join(f" && mount --bind {folder} {folder} && mount -o remount,bind,ro {folder}"
+                   for folder in ("/tmp", "/var/tmp") if temporary == "read-only" and Path(folder).is_dir())
     script = (f"mount --make-rprivate / && mount --bind {REPO_ROOT} {REPO_ROOT} && "
               f"mount -o remount,bind,ro {REPO_ROOT} && mount --bind {tmp_path} {work} && "
               f"mount -t tmpfs -o ro,size=64k tmpfs {work / 'home'}{hide} && cd {work / 'home'} && "

@@ -26,6 +26,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from cache_records import record_again
 from PIL import Image
 
 from sianms_cli.data.schemas import SCHEMA_VERSION, cache_schemas
@@ -114,6 +115,7 @@ def write_cache(cache: Path, dataroot: Path, tokens: dict[str, str], features: n
     pq.write_table(pa.table(rows, schema=schema), cache / "detections" / "scene-0001.parquet")
     (cache / "manifest.json").write_text(json.dumps({
         "schema_version": SCHEMA_VERSION, "config": {"version": VERSION}, "dataroot": str(dataroot)}))
+    record_again(cache)  # complete, listing the shard as prepare would
 
 
 @pytest.fixture

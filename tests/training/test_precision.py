@@ -164,7 +164,8 @@ def test_a_bf16_siamese_training_learns_records_its_precision_and_resumes_exactl
     b = load_checkpoint(tmp_path / "resumed" / "checkpoint.pt")
     assert a.extra["precision"] == "bf16" and a.extra["grad_scaler"] == {}
     assert all(torch.equal(value, b.model[key]) for key, value in a.model.items())
-    float32 = train_siamese(SiameseConfig(cache=str(train), epochs=1, **TINY_SIAMESE), tmp_path / "fp32")
+    float32 = train_siamese(SiameseConfig(cache=str(train), epochs=1, precision="fp32", **TINY_SIAMESE),
+                            tmp_path / "fp32")
     assert float32.history[0]["train_loss"] != straight.history[0]["train_loss"]  # bf16 did compute otherwise
 
 
