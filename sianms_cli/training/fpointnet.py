@@ -70,10 +70,13 @@ from sianms_cli.training.run import (
     RunFolder,
     cache_inputs,
     check_losses_finite,
+    checkpoint_file,
     choose_device,
     epoch_generator,
     finish_distributed,
     init_distributed,
+    load_checkpoint,
+    load_state,
     plain,
     row_counts,
     seed_everything,
@@ -372,21 +375,15 @@ def _figures(prefix: str, rows: dict[str, np.ndarray], keep: np.ndarray) -> dict
 def load_initial_weights(model: FPointNetV1, config: FPointNetConfig) -> np.ndarray:
     """Start ``model`` from the weights of ``config.init`` (fine-tuning) and return their size
     clusters (l, w, h), which the run keeps: its size residuals are relative to them. A checkpoint
-    of other classes or another shape of network is refused, naming it."""
-    from sianms_cli.training.run import checkpoint_file, load_checkpoint
-
+    of other classes or another shape of network is refused, naming it and the first weight that
+    differs (float16 zoo weights are cast to the model's float32 as they load)."""
     path = checkpoint_file(config.init)
     initial = load_checkpoint(path, "fpointnet")
     classes = initial.extra.get("classes")
     if classes != list(config.classes):
         raise DataFormatError(path, f"trained on classes {classes!r}, this run trains {list(config.classes)}: "
                               "--classes must be the same to fine-tune", field="extra.classes")
-    try:
-        model.load_state_dict({key: value.float() for key, value in initial.model.items()})
-    except RuntimeError as error:  # another layer shape or set of layers: say the first difference
-        raise DataFormatError(path, "not this run's network (another --intensity or architecture): "
-                              f"{str(error).splitlines()[1].strip() if len(str(error).splitlines()) > 1 else error}",
-                              field="model") from None
+    load_state(model, initial.model, path)
     return model.mean_sizes.cpu().numpy().astype(np.float64)
 
 
