@@ -211,16 +211,17 @@ def schedule(config: FPointNetConfig, samples: int, total: int) -> tuple[float, 
         lr = config.lr * config.decay_rate ** steps
         return lr, max(config.bn_momentum_min, config.bn_momentum * 0.5 ** steps)
     total = max(total, 1)
-    progress = min(samples / total, 1.0)
     warmup = min(WARMUP_SHARE * total, total / config.epochs)
     if samples < warmup:
         return config.lr * (samples + 1) / (warmup + 1), config.bn_momentum
-    after_warmup = (samples - warmup) / max(total - warmup, 1)
-    cosine = 0.5 * (1 + math.cos(math.pi * min(after_warmup, 1.0)))
-    lr = config.lr * (FINAL_LR_SHARE + (1 - FINAL_LR_SHARE) * cosine)
-    momentum = config.bn_momentum_min + (config.bn_momentum - config.bn_momentum_min) * 0.5 * (
-        1 + math.cos(math.pi * progress))
+    lr = config.lr * (FINAL_LR_SHARE + (1 - FINAL_LR_SHARE) * half_cosine((samples - warmup) / max(total - warmup, 1)))
+    momentum = config.bn_momentum_min + (config.bn_momentum - config.bn_momentum_min) * half_cosine(samples / total)
     return lr, momentum
+
+
+def half_cosine(progress: float) -> float:
+    """1 at the start of a span, 0 at its end (``progress`` 0 -> 1, past the end held at 0), along a half cosine."""
+    return 0.5 * (1 + math.cos(math.pi * min(progress, 1.0)))
 
 
 def size_clusters(config: FPointNetConfig) -> tuple[np.ndarray, np.ndarray]:
