@@ -20,7 +20,8 @@ from sianms_cli.data.cache import complete_manifest, cache_fingerprint
 from sianms_cli.io import write_bytes, write_json
 from sianms_cli.provenance import numeric_platform
 from sianms_cli.training.run import CHECKPOINT_FORMAT, Checkpoint, checkpoint_file, load_checkpoint
-from sianms_cli.zoo import CARD_KIND, FOLDER
+from sianms_cli.zoo import CARD_KIND, FOLDER, PREFIX, is_zoo_name
+from sianms_cli.zoo import card as zoo_card
 
 CURVE_FIGURES = ("train_total", "train_heading_class", "val_heading_error", "val_heading_error_mod_pi",
                  "val_heading_bin_accuracy", "val_iou_0.7", "val_car_heading_error", "val_car_iou_0.7",
@@ -39,12 +40,21 @@ def slim_checkpoint(checkpoint: Checkpoint) -> bytes:
 
 
 def training_summary(checkpoint: Checkpoint) -> dict[str, Any]:
-    """Epochs, wall time and the per-epoch figures of :data:`CURVE_FIGURES` from a run's history."""
+    """Epochs, wall time and the per-epoch figures of :data:`CURVE_FIGURES` from a run's history;
+    for a run started from other weights (``--init``), ``started_from`` holds that training's
+    summary in turn (a zoo entry's: its card's), so the card accounts for every epoch behind the
+    weights. An ``--init`` path is read relative to the working folder, as the training read it."""
     history = checkpoint.history
     curve = [{"epoch": row["epoch"], **{name: row[name] for name in CURVE_FIGURES if row.get(name) is not None}}
              for row in history]
-    return {"epochs": checkpoint.epoch, "wall_seconds": round(sum(row.get("seconds") or 0.0 for row in history), 1),
-            "precision": checkpoint.extra.get("precision", "fp32"), "curve": curve}
+    summary = {"epochs": checkpoint.epoch,
+               "wall_seconds": round(sum(row.get("seconds") or 0.0 for row in history), 1),
+               "precision": checkpoint.extra.get("precision", "fp32"), "curve": curve}
+    init = checkpoint.config.get("init")
+    if init:
+        summary["started_from"] = {"init": init, **(zoo_card(init[len(PREFIX):])["training"] if is_zoo_name(init)
+                                                     else training_summary(load_checkpoint(checkpoint_file(init))))}
+    return summary
 
 
 def export_entry(run: str | Path, name: str, *, summary: str, commands: list[str], commit: str,

@@ -65,6 +65,21 @@ def test_init_fine_tunes_from_an_entry_keeping_its_size_clusters(tiny_caches, fo
     assert result.history[0]["train_total"] < 10 * entry.history[-1]["train_total"]
 
 
+def test_a_fine_tuned_entrys_card_accounts_for_the_training_it_started_from(tiny_caches, tiny_run, folder, tmp_path):
+    """From a run folder: that run's epochs and curve; from a zoo entry: the entry's card's training."""
+    for init, name in ((str(tiny_run), "from-run"), ("zoo:tiny", "from-entry")):
+        tuned = tmp_path / name
+        train_fpointnet(FPointNetConfig(cache=str(tiny_caches[0]), epochs=1, init=init, **TINY), tuned)
+        export_entry(tuned, name, summary="tuned", commands=["sianms train fpointnet --init ..."], commit="0" * 40,
+                     held_out=HELD_OUT, machine="test", folder=folder)
+        training = zoo.card(name)["training"]
+        assert training["epochs"] == 1 and len(training["curve"]) == 1
+        started = training["started_from"]
+        assert started["init"] == init and started["epochs"] == 2 and len(started["curve"]) == 2
+        assert started["curve"] == zoo.card("tiny")["training"]["curve"]
+    assert "started_from" not in zoo.card("tiny")["training"]
+
+
 def test_an_unknown_name_lists_the_shipped_entries(folder):
     with pytest.raises(SianmsError, match=r"zoo:nope: no such zoo entry \(shipped: zoo:tiny; `sianms zoo`"):
         checkpoint_file("zoo:nope")
