@@ -1,17 +1,22 @@
 """Frustum-level figures of a Frustum PointNets on a held-out cache, as the training's validation
 computes them (per class: 3-D IoU >= 0.5 and >= 0.7 rates, centre error, heading error as the AOE
-counts it and modulo π, heading-bin accuracy, segmentation accuracy), for a zoo entry's model card.
+counts it and modulo π, heading-bin accuracy, segmentation accuracy) and how the heading errs
+(within 30° of the truth, turned front to back within 30° of π, or off the axis), for a zoo entry's
+model card. ``--devkit`` adds the official devkit's per-class figures from scripts/devkit_dump.py's
+output (AP in %, ATE, ASE, AOE, ground-truth boxes).
 
 The 2-D boxes are the cache's (detections associated with ground truth, or projected ground truth),
 so these figures measure the 3-D stage alone; `sianms eval` and `sianms metrics` score the boxes a
 whole pipeline reports.
 
 Usage: python scripts/zoo_held_out.py --fpointnet RUN|zoo:NAME --cache HELD_OUT_CACHE --out FIGURES.json
+                                      [--devkit DEVKIT_DUMP.json]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -19,19 +24,54 @@ import torch
 
 from sianms_cli.io import write_json
 from sianms_cli.evaluation.inference import FPointNetPredictor
-from sianms_cli.training.fpointnet import FPointNetConfig, validate
+from sianms_cli.training.fpointnet import FPointNetConfig, validate, validation_rows
 from sianms_cli.training.run import checkpoint_file, load_checkpoint
 
 
-def held_out_figures(fpointnet: str, cache: str, seed: int = 0) -> dict[str, float]:
+DEVKIT_CLASSES = ("car", "pedestrian", "bicycle")
+TURN = np.pi / 6
+"""A heading within this of the truth is right; within this of the truth turned by π, flipped."""
+
+
+def held_out_figures(fpointnet: str, cache: str, seed: int = 0) -> dict[str, dict[str, float]]:
+    """The validation figures of ``fpointnet`` on ``cache``, by class, with each class's heading
+    outcomes (the same draws: each pass is seeded alike)."""
     path = checkpoint_file(fpointnet)
     checkpoint = load_checkpoint(path, "fpointnet")
-    predictor = FPointNetPredictor(checkpoint, path)
+    model = FPointNetPredictor(checkpoint, path).model
     fields = {key: value for key, value in checkpoint.config.items() if key in FPointNetConfig.__dataclass_fields__}
     config = replace(FPointNetConfig(**{**fields, "cache": cache}), val_cache=cache, init=None)
-    rng = np.random.default_rng(seed)
-    generator = torch.Generator().manual_seed(seed)
-    return validate(predictor.model, config, rng, generator, torch.device("cpu"))
+
+    def draws() -> tuple[np.random.Generator, torch.Generator, torch.device]:
+        return np.random.default_rng(seed), torch.Generator().manual_seed(seed), torch.device("cpu")
+
+    grouped = by_class(validate(model, config, *draws()))
+    rows = validation_rows(model, config, *draws())
+    for k, name in enumerate(config.classes):
+        grouped[f"{name}, frustums"].update(heading_outcomes(rows["heading"][rows["class"] == k]))
+    return grouped
+
+
+def heading_outcomes(errors: np.ndarray) -> dict[str, float]:
+    """Shares of heading ``errors`` (radians, in [0, π]) that are right, flipped front to back, or off the axis."""
+    if not len(errors):
+        return {}
+    right, flipped = float(np.mean(errors < TURN)), float(np.mean(errors > np.pi - TURN))
+    return {"heading_right": round(right, 4), "heading_flipped": round(flipped, 4),
+            "heading_off_axis": round(1 - right - flipped, 4)}
+
+
+def devkit_figures(path: str) -> dict[str, dict[str, float]]:
+    """Per class of :data:`DEVKIT_CLASSES`: AP (%, mean over the distance thresholds) and the true-positive
+    errors, from the official devkit's evaluation as scripts/devkit_dump.py writes it."""
+    with open(path, encoding="utf-8") as file:
+        evaluation = json.load(file)["evaluation"]
+    return {f"{name}, devkit": {"AP": round(100 * evaluation["mean_dist_aps"][name], 1),
+                                "ATE": round(evaluation["label_tp_errors"][name]["trans_err"], 3),
+                                "ASE": round(evaluation["label_tp_errors"][name]["scale_err"], 3),
+                                "AOE": round(evaluation["label_tp_errors"][name]["orient_err"], 3),
+                                "ground_truth": evaluation["gt_boxes_per_class"][name]}
+            for name in DEVKIT_CLASSES}
 
 
 def main() -> None:
@@ -40,11 +80,13 @@ def main() -> None:
     parser.add_argument("--cache", required=True)
     parser.add_argument("--out", required=True)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--devkit", help="scripts/devkit_dump.py's output on the held-out world's results")
     args = parser.parse_args()
     figures = held_out_figures(args.fpointnet, args.cache, args.seed)
-    write_json(args.out, {"fpointnet": args.fpointnet, "cache": args.cache, "seed": args.seed,
-                          "figures": by_class(figures)})
-    for group, values in by_class(figures).items():
+    if args.devkit:
+        figures.update(devkit_figures(args.devkit))
+    write_json(args.out, {"fpointnet": args.fpointnet, "cache": args.cache, "seed": args.seed, "figures": figures})
+    for group, values in figures.items():
         print(f"{group}: " + ", ".join(f"{key} {value:.3f}" for key, value in values.items()))
 
 

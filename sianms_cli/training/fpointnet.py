@@ -328,10 +328,23 @@ def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config
     return {**figures, "train_count": seen, "train_union_count": int(union_seen)}, samples
 
 
-@torch.no_grad()
 def validate(model: FPointNetV1, config: FPointNetConfig, rng: np.random.Generator, generator: torch.Generator,
              device: torch.device) -> dict[str, float]:
     """Loss and box figures on the validation cache, overall and per class (module docstring)."""
+    joined = validation_rows(model, config, rng, generator, device)
+    if not joined:
+        return {}
+    metrics = _figures("val", joined, np.ones(len(joined["class"]), dtype=bool))
+    for k, name in enumerate(config.classes):
+        metrics.update(_figures(f"val_{name}", joined, joined["class"] == k))
+    return metrics
+
+
+@torch.no_grad()
+def validation_rows(model: FPointNetV1, config: FPointNetConfig, rng: np.random.Generator,
+                    generator: torch.Generator, device: torch.device) -> dict[str, np.ndarray]:
+    """Per validation frustum: class index, 3-D IoU, centre error, heading error (period 2π), whether
+    the heading bin is right, segmentation accuracy, and its batch's loss ({} without frustums)."""
     model.eval()
     rows: dict[str, list[np.ndarray]] = {key: [] for key in ("class", "iou", "center", "heading", "heading_bin",
                                                              "seg", "loss")}
@@ -352,11 +365,7 @@ def validate(model: FPointNetV1, config: FPointNetConfig, rng: np.random.Generat
         rows["loss"].append(np.full(len(center), losses["total"].item()))
     if not rows["class"]:
         return {}
-    joined = {key: np.concatenate(value) for key, value in rows.items()}
-    metrics = _figures("val", joined, np.ones(len(joined["class"]), dtype=bool))
-    for k, name in enumerate(config.classes):
-        metrics.update(_figures(f"val_{name}", joined, joined["class"] == k))
-    return metrics
+    return {key: np.concatenate(value) for key, value in rows.items()}
 
 
 def _figures(prefix: str, rows: dict[str, np.ndarray], keep: np.ndarray) -> dict[str, float]:

@@ -7,6 +7,7 @@ import pickle
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 import torch
@@ -19,6 +20,8 @@ from sianms_cli.training.fpointnet import FPointNetConfig
 from sianms_cli.training.fpointnet import run as train_fpointnet
 from sianms_cli.training.run import checkpoint_file, load_checkpoint
 from sianms_cli.zoo.export import export_entry
+
+HELD_OUT_SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "zoo_held_out.py"
 
 TINY = {"num_points": 32, "num_object_points": 16, "batch_size": 8, "min_box_height": 0, "flip": False,
         "shift": False, "jitter": False, "device": "cpu", "seed": 2, "precision": "fp32"}
@@ -150,3 +153,27 @@ def test_the_shipped_entries_load_as_their_cards_say():
         checkpoint = load_checkpoint(checkpoint_file(f"{zoo.PREFIX}{name}"), zoo.card(name)["model"])
         assert checkpoint.optimizer == {}
     assert shutil.disk_usage(zoo.FOLDER)  # the package folder exists where the cards say
+
+
+def test_the_held_out_script_splits_each_class_heading_errors_and_reads_the_devkits_figures(tiny_run, tiny_caches,
+                                                                                          tmp_path):
+    """Right + flipped + off the axis = 1 for each class seen, besides the validation's own figures;
+    the devkit's AP and true-positive errors in the card's units."""
+    labels = ("car", "pedestrian", "bicycle")
+    evaluation = {"mean_dist_aps": dict.fromkeys(labels, 0.4331), "gt_boxes_per_class": dict.fromkeys(labels, 7),
+                  "label_tp_errors": dict.fromkeys(labels, {"trans_err": 0.2973, "scale_err": 0.19418,
+                                                            "orient_err": 0.99956})}
+    (tmp_path / "devkit.json").write_text(json.dumps({"evaluation": evaluation}))
+    out = tmp_path / "figures.json"
+    result = subprocess.run([sys.executable, str(HELD_OUT_SCRIPT), "--fpointnet", str(tiny_run), "--cache",
+                             str(tiny_caches[1]), "--out", str(out), "--devkit", str(tmp_path / "devkit.json")],
+                            capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    figures = json.loads(out.read_text())["figures"]
+    seen = [group for group, values in figures.items()
+            if group.endswith(", frustums") and group != "all, frustums" and values.get("count")]
+    assert "car, frustums" in seen
+    for values in (figures[group] for group in seen):
+        shares = values["heading_right"] + values["heading_flipped"] + values["heading_off_axis"]
+        assert shares == pytest.approx(1, abs=2e-4)  # each share rounded to 4 places
+    assert figures["car, devkit"] == {"AP": 43.3, "ATE": 0.297, "ASE": 0.194, "AOE": 1.0, "ground_truth": 7}
