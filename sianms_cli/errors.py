@@ -21,7 +21,7 @@ class SianmsError(Exception):
         return _rebuild, (type(self), self.args, self.__dict__)
 
 
-def _rebuild(cls: type, args: tuple, state: dict) -> SianmsError:
+def _rebuild(cls: type[SianmsError], args: tuple, state: dict) -> SianmsError:
     error = cls.__new__(cls)
     Exception.__init__(error, *args)
     error.__dict__.update(state)

@@ -24,7 +24,7 @@ import shutil
 import stat
 from contextlib import contextmanager, suppress
 from pathlib import Path
-from typing import IO, Any, Callable, Iterator, Literal, TypeVar
+from typing import IO, Any, Callable, Iterator, Literal, Mapping, TypeVar
 
 import orjson
 
@@ -243,7 +243,7 @@ def refuse_non_file(path: Path) -> None:
         raise OutputError(f"cannot write {path}: not a regular file")
 
 
-def write_files_together(contents: dict[Path, str | bytes], *, overwrite: bool = False) -> None:
+def write_files_together(contents: Mapping[Path, str | bytes], *, overwrite: bool = False) -> None:
     """Write each ``{path: content}`` (a text as UTF-8) under its temporary name, then rename them
     all into place.
 

@@ -25,7 +25,7 @@ import mmap
 import re
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator, Sequence
+from typing import Any, Callable, Iterable, Iterator, Sequence, TypeGuard
 
 import orjson
 
@@ -42,7 +42,7 @@ def json_kind(value: Any) -> str:
     return _JSON_KINDS.get(type(value), type(value).__name__)
 
 
-def is_number(value: Any) -> bool:
+def is_number(value: Any) -> TypeGuard[int | float]:
     """Whether ``value`` is an int or a float, and not a bool (JSON ``true`` is no number)."""
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
@@ -57,7 +57,7 @@ def fits_float(values: Sequence[Any]) -> bool:
     return True
 
 
-def is_finite_number(value: Any) -> bool:
+def is_finite_number(value: Any) -> TypeGuard[int | float]:
     """Whether ``value`` is a number (:func:`is_number`) that is finite as a float: not NaN,
     not infinite (Python's json reads both) and not an integer past float's range."""
     if not is_number(value):
@@ -232,7 +232,9 @@ class JsonStream:
     def _skip_whitespace(self) -> str:
         """The next non-blank character ('' at the end of the file)."""
         while True:
-            self.pos = _WHITESPACE.match(self.buffer, self.pos).end()
+            blank = _WHITESPACE.match(self.buffer, self.pos)
+            assert blank is not None  # a starred pattern matches, if only the empty string
+            self.pos = blank.end()
             if self.pos < len(self.buffer):
                 return self.buffer[self.pos]
             if self.eof:

@@ -419,11 +419,12 @@ def accumulate_thresholds(gt: np.ndarray, pred: np.ndarray, class_name: str | in
     gt, pred = _of_label(gt, label), _of_label(pred, label)
     if len(gt) == 0:
         return [MetricData.no_predictions() for _ in dist_ths]
-    gt, pred = _Columns(gt), _Columns(pred)
-    order = processing_order(pred.score)
-    matched, distance = greedy_match(gt.sample, gt.xy, pred.sample, pred.xy, order, dist_ths)
+    gt_columns, pred_columns = _Columns(gt), _Columns(pred)
+    order = processing_order(pred_columns.score)
+    matched, distance = greedy_match(gt_columns.sample, gt_columns.xy, pred_columns.sample, pred_columns.xy, order,
+                                     dist_ths)
     period = np.pi if label == LABEL["barrier"] else 2 * np.pi
-    return [_metric_data(gt, pred, order, m, d, period) for m, d in zip(matched, distance)]
+    return [_metric_data(gt_columns, pred_columns, order, m, d, period) for m, d in zip(matched, distance)]
 
 
 def accumulate(gt: np.ndarray, pred: np.ndarray, class_name: str | int, dist_th: float) -> MetricData:

@@ -60,6 +60,7 @@ from sianms_cli.metrics.results import (
 from sianms_cli.io import (check_outside_dataroot, check_writable_output, expand_home, read_json, real_path, write_text,
                            write_files_together)
 from sianms_cli.nuscenes.loader import NuScenesDB
+from sianms_cli.nuscenes.overlap import OverlapBits
 from sianms_cli.nuscenes.tables import check_version_name
 from sianms_cli.nuscenes.sample_rigs import sample_rigs
 from sianms_cli.progress import SILENT, Progress
@@ -144,7 +145,7 @@ def run(config: MetricsConfig, out: str | Path | None = None, *, details: str | 
             raise SianmsError(f"{flag}: {path} is the --config file; write it elsewhere")
         check_outside_dataroot(path, config.dataroot, flag, "metrics")
         check_writable_output(path, overwrite=overwrite)
-    if len(outputs) == 2 and real_path(out) == real_path(details):
+    if out is not None and details is not None and real_path(out) == real_path(details):
         raise SianmsError(f"--details: {details} is also --out; give each its own file")
     detection = load_config(config.detection_config)
     db = NuScenesDB(config.dataroot, config.version)
@@ -311,14 +312,14 @@ def evaluate(
     gt, pred = gt[gt_filter.kept], pred[pred_filter.kept]
     _check_gt_sizes(db, gt, annotation_rows[gt_filter.kept])
 
-    overlap = {"gt": None, "pred": None}
+    overlap: dict[str, OverlapBits | None] = {"gt": None, "pred": None}
     pair_names: tuple[str, ...] = ()
     if needs_overlap(regions):
         rigs, rig_of_sample = sample_rigs(db, split.sample_tokens)
         for side, boxes in (("gt", gt), ("pred", pred)):
-            overlap[side] = overlap_bits(boxes, centers_in_ego(boxes, ego_rotation, ego_translation),
-                                         rigs, rig_of_sample)
-            pair_names = overlap[side].pair_names
+            bits = overlap_bits(boxes, centers_in_ego(boxes, ego_rotation, ego_translation), rigs, rig_of_sample)
+            overlap[side] = bits
+            pair_names = bits.pair_names
     names = resolve_regions(regions, pair_names)
 
     progress.start(len(names), "region", "evaluating")

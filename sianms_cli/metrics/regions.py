@@ -67,8 +67,8 @@ def resolve_regions(requested: Iterable[str], pair_names: Sequence[str]) -> list
             names = [name]
         elif name == EVERY_PAIR:
             names = [PAIR_PREFIX + pair for pair in pair_names]
-        elif name.startswith(PAIR_PREFIX) and _canonical_pair(name, pair_names):
-            names = [PAIR_PREFIX + _canonical_pair(name, pair_names)]
+        elif name.startswith(PAIR_PREFIX) and (pair := _canonical_pair(name, pair_names)):
+            names = [PAIR_PREFIX + pair]
         else:
             pairs = ", ".join(PAIR_PREFIX + pair for pair in pair_names) or "none (no camera pairs)"
             raise SianmsError(f"unknown region '{name}'; regions: {ALL}, {OVERLAP}, {NON_OVERLAP}, "

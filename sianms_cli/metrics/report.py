@@ -27,7 +27,7 @@ import json
 import math
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping, NoReturn, Sequence
 
 import numpy as np
 
@@ -114,7 +114,8 @@ class RegionMetrics:
         return (_finite_or_none(self.summary()) == _finite_or_none(other.summary())
                 and dict(self.gt_counts) == dict(other.gt_counts) and dict(self.pred_counts) == dict(other.pred_counts))
 
-    __hash__ = None
+    # Unhashable, as equal values that may change must be; typeshed types object.__hash__ as a method only.
+    __hash__ = None  # type: ignore[assignment]
 
 
 @dataclass(frozen=True, eq=False)
@@ -210,7 +211,8 @@ class MetricsReport:
             return NotImplemented
         return self.serialize() == other.serialize()
 
-    __hash__ = None
+    # Unhashable, as equal values that may change must be; typeshed types object.__hash__ as a method only.
+    __hash__ = None  # type: ignore[assignment]
 
 
 def report_json(report: MetricsReport) -> str:
@@ -246,7 +248,7 @@ class _Reader:
     def __init__(self, source: str | Path) -> None:
         self.source = source
 
-    def fail(self, field: str, message: str):
+    def fail(self, field: str, message: str) -> NoReturn:
         raise DataFormatError(self.source, message, field=field or None)
 
     def object(self, value: Any, field: str) -> dict:

@@ -131,8 +131,10 @@ def check_samples(results: Results, max_boxes_per_sample: int) -> np.ndarray:
     boxes than allowed; returns :meth:`Results.sample_bounds`."""
     if len(set(results.sample_tokens)) != len(results.sample_tokens):
         seen: set[str] = set()
-        duplicate = next(t for t in results.sample_tokens if t in seen or seen.add(t))
-        raise ResultsFormatError(results.path, "sample listed twice", token=duplicate, field="results")
+        for token in results.sample_tokens:
+            if token in seen:
+                raise ResultsFormatError(results.path, "sample listed twice", token=token, field="results")
+            seen.add(token)
     return check_box_counts(results, max_boxes_per_sample)
 
 
@@ -267,7 +269,7 @@ def _read_scanned(path: Path, max_boxes_per_sample: int, progress: Callable[[int
     from sianms_cli.metrics.results_scan import read_plain_results  # loads numba
 
     plain = read_plain_results(path, progress)  # every box's values checked
-    if plain is None:
+    if plain is None or not isinstance(plain.meta, dict):  # a meta that is no object: _check_meta refuses it
         return None
     results = Results(plain.sample_tokens, plain.boxes, plain.meta, str(path), validated=True)
     try:
@@ -429,7 +431,9 @@ class _Batch:
                 if problem is None:
                     single = _Batch(self.path)
                     single.add(0, token, [box])
-                    bad = first_bad_row(single._convert())
+                    table = single._convert()
+                    assert table is not None  # a box _box_problem passes has the types _convert needs
+                    bad = first_bad_row(table)
                     problem = None if bad is None else bad[1:]
                 if problem is not None:
                     raise ResultsFormatError(self.path, problem[1], token=token, field=problem[0],

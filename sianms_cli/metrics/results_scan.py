@@ -483,20 +483,21 @@ def _read(buf: np.ndarray, mapped: mmap.mmap, progress: Callable[[int], None] | 
         second = threads.submit(_read_part, buf, mapped, middle, False, len(buf), later.append) if middle > 0 else None
         parts = [first.result()]
         if parts[0] is not None and parts[0].status == _MORE:
-            if parts[0].position == middle:
+            if second is not None and parts[0].position == middle:  # no second thread: middle is -1
                 parts.append(second.result())
                 report(sum(later))
             else:
                 parts.append(_read_part(buf, mapped, parts[0].position, parts[0].opening, len(buf), report))
-    if any(part is None for part in parts) or parts[-1].status != _DONE:
+    read = [part for part in parts if part is not None]
+    if len(read) != len(parts) or read[-1].status != _DONE:
         return None
-    if not _only_closing_brace_after(buf, parts[-1].position):
+    if not _only_closing_brace_after(buf, read[-1].position):
         return None
-    report(len(buf) - parts[-1].position)
-    tokens = [token for part in parts for token in part.tokens]
-    tables = [table for part in parts for table in part.tables]
-    offset = len(parts[0].tokens)
-    for table in parts[1].tables if len(parts) == 2 else ():
+    report(len(buf) - read[-1].position)
+    tokens = [token for part in read for token in part.tokens]
+    tables = [table for part in read for table in part.tables]
+    offset = len(read[0].tokens)
+    for table in read[1].tables if len(read) == 2 else ():
         table["sample"] += offset
     return PlainResults(tuple(tokens), _joined(tables), meta)
 
