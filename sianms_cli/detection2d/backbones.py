@@ -80,6 +80,7 @@ class TinyBackbone(nn.Module):
             conv = nn.Conv2d(cin, cout, 3, stride=2, padding=1)
             with torch.no_grad():
                 conv.weight.copy_(torch.randn(conv.weight.shape, generator=generator) * math.sqrt(2.0 / (9 * cin)))
+                assert conv.bias is not None  # a Conv2d has one unless built with bias=False
                 conv.bias.zero_()
             layers += [conv, nn.ReLU()]
         self.body = nn.Sequential(*layers)
@@ -96,6 +97,11 @@ class TinyBackbone(nn.Module):
 
 class FrozenBatchNorm2d(nn.Module):
     """Batch norm with fixed statistics, as torchvision's (buffers only; eps 0 for COCO weights)."""
+
+    weight: torch.Tensor  # the buffers __init__ registers
+    bias: torch.Tensor
+    running_mean: torch.Tensor
+    running_var: torch.Tensor
 
     def __init__(self, channels: int, eps: float = 0.0) -> None:
         super().__init__()
@@ -207,7 +213,11 @@ class ResNet50C4(nn.Module):
         return model
 
 
-def build_backbone(name: str, weights: str | Path | None = None, seed: int = 0) -> nn.Module:
+Backbone = TinyBackbone | ResNet50C4
+"""A backbone :func:`build_backbone` makes."""
+
+
+def build_backbone(name: str, weights: str | Path | None = None, seed: int = 0) -> Backbone:
     """The backbone ``name`` (one of BACKBONES); ``resnet50-c4`` needs ``weights``."""
     if name == "tiny":
         return TinyBackbone(seed)

@@ -90,7 +90,7 @@ def roi_align(
             ys, wy_lo, wy_hi, y_lo, y_hi = _axis(y1[index], bin_h[index], ph, gh, height)
             xs, wx_lo, wx_hi, x_lo, x_hi = _axis(x1[index], bin_w[index], pw, gw, width)
             b = batch[index][:, None, None]
-            value = 0
+            value = features.new_zeros(())  # 0 + the first term, as a Python 0 would add
             for wy, yi in ((wy_lo, y_lo), (wy_hi, y_hi)):
                 for wx, xi in ((wx_lo, x_lo), (wx_hi, x_hi)):
                     weight = (wy[:, :, None] * wx[:, None, :]).to(features.dtype)  # (k, Sy, Sx)

@@ -10,20 +10,19 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from torch import nn
 
-from sianms_cli.detection2d.backbones import STRIDE
+from sianms_cli.detection2d.backbones import STRIDE, Backbone
 from sianms_cli.detection2d.roi_align import roi_align
 
 FEATURE_DTYPE = "<f2"
 
 
-def roi_feature_shape(backbone: nn.Module, roi_size: int) -> tuple[int, int, int]:
+def roi_feature_shape(backbone: Backbone, roi_size: int) -> tuple[int, int, int]:
     """(C, PH, PW) of one box's features."""
     return (int(backbone.channels), roi_size, roi_size)
 
 
-def roi_features(backbone: nn.Module, image: np.ndarray, boxes: np.ndarray, roi_size: int,
+def roi_features(backbone: Backbone, image: np.ndarray, boxes: np.ndarray, roi_size: int,
                  sampling_ratio: int) -> np.ndarray:
     """ROI-Align features of boxes in one image.
 

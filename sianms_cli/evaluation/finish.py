@@ -163,7 +163,7 @@ def box_table(boxes: AllBoxes, rows: np.ndarray, default_attribute: dict[str, st
     return table
 
 
-def reidentification(boxes: AllBoxes, gated: bool = False) -> dict[str, dict[str, float]]:
+def reidentification(boxes: AllBoxes, gated: bool = False) -> dict[str, dict[str, float | None]]:
     """Pair precision / recall / F1 of each matcher's kept matches against ground-truth identity.
 
     The pairs to find are the oracle's (same instance, both candidates under the same rule),

@@ -116,7 +116,7 @@ class FPointNetPredictor:
         load_state(self.model, checkpoint.model, path)
         self.model.eval()
 
-    def predict(self, points: np.ndarray, offsets: np.ndarray, class_names: Sequence[str], key: str,
+    def predict(self, points: np.ndarray, offsets: np.ndarray, class_names: Sequence[str] | np.ndarray, key: str,
                 seed: int) -> dict[str, np.ndarray]:
         """Boxes of frustums in their own frames.
 

@@ -32,7 +32,7 @@ import time
 from contextlib import closing
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterator
+from typing import TYPE_CHECKING, Any, Generator
 
 import numpy as np
 import pyarrow as pa
@@ -428,7 +428,7 @@ def _run_in_worker(args: tuple[str, str]) -> tuple[str, str]:
 
 
 def _run_scenes(evaluator: SceneEvaluator, config: EvalConfig, settings: SceneSettings, out: Path,
-                todo: list[tuple[str, str]], workers: int) -> Iterator[tuple[str, str]]:
+                todo: list[tuple[str, str]], workers: int) -> Generator[tuple[str, str], None, None]:
     if workers == 1 or len(todo) <= 1:
         with task_torch_threads():
             for token, name in todo:

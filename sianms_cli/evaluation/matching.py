@@ -114,7 +114,7 @@ def oracle_matches(instances_a: np.ndarray, instances_b: np.ndarray, classes_a: 
     return assign(np.zeros(same.shape), allowed)
 
 
-def pair_quality(matched: int, correct: int, true_pairs: int) -> dict[str, float]:
+def pair_quality(matched: int, correct: int, true_pairs: int) -> dict[str, float | None]:
     """Re-identification precision, recall and F1 against ground-truth identity (None when undefined)."""
     precision = correct / matched if matched else None
     recall = correct / true_pairs if true_pairs else None

@@ -114,10 +114,10 @@ def nms_keep(boxes: AllBoxes, rows: np.ndarray, kind: str, threshold: float | No
     label = boxes.sample[rows] * len(names) + class_index  # boxes of other samples or classes never suppress
     centers, sizes, yaw, scores = (boxes.translation[rows, :2], boxes.size[rows, :2], boxes.yaw[rows],
                                    boxes.score[rows])
-    if kind == AXIS_NMS:
-        kept = nms.axis_nms(centers, sizes, yaw, scores, label, threshold, mode=axis_mode)
-    elif kind == ROTATED_NMS:
-        kept = nms.rotated_nms(centers, sizes, yaw, scores, label, threshold)
+    if kind in IOU_METHODS:  # method_threshold gives each its IoU threshold
+        assert threshold is not None, kind
+        kept = (nms.axis_nms(centers, sizes, yaw, scores, label, threshold, mode=axis_mode) if kind == AXIS_NMS
+                else nms.rotated_nms(centers, sizes, yaw, scores, label, threshold))
     else:
         kept = nms.circle_nms(centers, scores, label, np.array([nms.CIRCLE_RADIUS_M[n] for n in names])[class_index])
     return np.sort(rows[np.asarray(kept, dtype=np.int64)])

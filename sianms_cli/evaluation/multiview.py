@@ -180,7 +180,7 @@ def _centre(box2d: np.ndarray) -> np.ndarray:
     return np.array([[0.5 * (box2d[0] + box2d[2]), 0.5 * (box2d[1] + box2d[3])]])
 
 
-def pair_union(points_global: np.ndarray, geometry: PairGeometry, k: int, boxes2d: np.ndarray,
+def pair_union(points_global: np.ndarray, geometry: PairGeometry, k: int | np.integer, boxes2d: np.ndarray,
                intrinsics: tuple[np.ndarray, np.ndarray], min_depth: float, max_depth: float
                ) -> tuple[np.ndarray, np.ndarray]:
     """Pair ``k``'s union frustum: (P,) bool members of ``points_global`` and their (M, 3) points

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import json
 import time
-from collections import Counter
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -137,7 +136,7 @@ class SceneEvaluator:
         # later scene the spans of an earlier scene's calibration.
         self._spans: WeakKeyDictionary[CameraRig, dict[tuple[int, int], tuple[float, float] | None]] = (
             WeakKeyDictionary())
-        self.seconds: Counter[str] = Counter()
+        self.seconds: dict[str, float] = {}  # per stage; a stage never timed reads 0
 
     @contextmanager
     def _timed(self, stage: str) -> Iterator[None]:
@@ -145,11 +144,11 @@ class SceneEvaluator:
         try:
             yield
         finally:
-            self.seconds[stage] += time.perf_counter() - started
+            self.seconds[stage] = self.seconds.get(stage, 0) + time.perf_counter() - started
 
     def scene(self, detections_path: Path, frustums_path: Path, scene_token: str) -> pa.Table:
         """The boxes table (:data:`BOXES_SCHEMA`) of one cache shard (a scene), its timings in the metadata."""
-        self.seconds = Counter()
+        self.seconds = {}
         with self._timed("read"):
             detections = read_shard_table(detections_path, columns=DETECTION_COLUMNS)
             require_finite(detections_path, detections, NUMERIC_DETECTION_COLUMNS)
@@ -171,7 +170,7 @@ class SceneEvaluator:
                 continue
             tables.append(self._sample(records, position, rigs[rig_of[position]], inputs, detections_path))
         table = pa.concat_tables(tables) if tables else BOXES_SCHEMA.empty_table()
-        timings = {"samples": len(records.sample_tokens), **{stage: self.seconds[stage] for stage in STAGES}}
+        timings = {"samples": len(records.sample_tokens), **{stage: self.seconds.get(stage, 0) for stage in STAGES}}
         return table.replace_schema_metadata({"sianms.timings": json.dumps(timings)})
 
     # ----------------------------------------------------------------------- inputs

@@ -193,7 +193,8 @@ class CameraRig:
         Returns:
             (N,) bool.
         """
-        return self.overlap_pairs(points_ego).any(axis=1)
+        # numpy's stubs type a reduction over one axis as a scalar or an array: here it is an array
+        return self.overlap_pairs(points_ego).any(axis=1)  # type: ignore[return-value]
 
 
 def _clockwise_order(azimuths: np.ndarray) -> np.ndarray:

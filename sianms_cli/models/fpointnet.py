@@ -64,6 +64,8 @@ class FPointNetV1(nn.Module):
         num_object_points: points gathered after masking (512 as the original).
     """
 
+    mean_sizes: torch.Tensor  # the buffer __init__ registers
+
     def __init__(self, mean_sizes: torch.Tensor, in_channels: int = 4, num_heading_bins: int = NUM_HEADING_BINS,
                  num_object_points: int = NUM_OBJECT_POINTS) -> None:
         super().__init__()
@@ -114,7 +116,7 @@ class FPointNetV1(nn.Module):
         one_hot = one_hot.to(points.dtype)
         point_feature = self.seg_point(points)
         global_feature = torch.cat([self.seg_global(point_feature).amax(dim=1), one_hot], dim=1)
-        point_head, seg_dropout, seg_logits_layer = self.seg_head
+        point_head, seg_dropout, seg_logits_layer = self._seg_head_parts()
         seg_feature = point_head[1:](self._seg_head_first_layer(point_feature, global_feature))
         seg_logits = seg_logits_layer(dropout(seg_feature, seg_dropout.p, share, self.training))
 
@@ -139,13 +141,20 @@ class FPointNetV1(nn.Module):
         broadcast: the same function, with 1,024 x 512 fewer multiply-adds per point (the
         largest layer of the network).
         """
-        layer = self.seg_head[0][0]
+        layer = self._seg_head_parts()[0][0]
+        assert isinstance(layer, PointLinear)  # _mlp builds of them only
         local = point_feature.shape[-1]
         weight = layer.linear.weight
         per_point = point_feature @ weight[:, :local].T
         per_frustum = torch.addmm(layer.linear.bias, global_feature, weight[:, local:].T)
         y = per_point + per_frustum[:, None, :]
         return torch.relu(batch_norm(layer.norm, y.reshape(-1, y.shape[-1]))).reshape(*y.shape)
+
+    def _seg_head_parts(self) -> tuple[nn.Sequential, nn.Dropout, nn.Linear]:
+        """The segmentation head's MLP, dropout and logits layer, as __init__ builds them."""
+        mlp, seg_dropout, logits = self.seg_head
+        assert isinstance(mlp, nn.Sequential) and isinstance(seg_dropout, nn.Dropout) and isinstance(logits, nn.Linear)
+        return mlp, seg_dropout, logits
 
     def parse_box_output(self, box: torch.Tensor, stage1_center: torch.Tensor) -> dict[str, torch.Tensor]:
         """Split the box net's ``3 + 2 NH + 4 NS`` outputs in the original's order

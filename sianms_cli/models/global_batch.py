@@ -81,11 +81,14 @@ def batch_norm(norm: nn.BatchNorm1d, x: torch.Tensor) -> torch.Tensor:
     mean = sums[:-1] / total
     centered = x - mean
     variance = _AllReduceSum.apply(centered.square().sum(dim=0)) / total
+    momentum, running_mean, running_var, batches = (norm.momentum, norm.running_mean, norm.running_var,
+                                                    norm.num_batches_tracked)
+    # The models' norms keep running statistics with a momentum (torch's defaults, which they keep)
+    assert momentum is not None and running_mean is not None and running_var is not None and batches is not None
     with torch.no_grad():
-        momentum = norm.momentum
-        norm.running_mean.mul_(1 - momentum).add_(mean.detach(), alpha=momentum)
-        norm.running_var.mul_(1 - momentum).add_(variance.detach() * (total / (total - 1)), alpha=momentum)
-        norm.num_batches_tracked.add_(1)
+        running_mean.mul_(1 - momentum).add_(mean.detach(), alpha=momentum)
+        running_var.mul_(1 - momentum).add_(variance.detach() * (total / (total - 1)), alpha=momentum)
+        batches.add_(1)
     return centered * torch.rsqrt(variance + norm.eps) * norm.weight + norm.bias
 
 

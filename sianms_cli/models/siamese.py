@@ -34,6 +34,9 @@ class SiameseEncoder(nn.Module):
         hidden: widths of the hidden fully connected layers (ReLU after each).
     """
 
+    input_mean: torch.Tensor  # the buffers __init__ registers
+    input_std: torch.Tensor
+
     def __init__(self, feature_shape: tuple[int, int, int], dim: int = 100,
                  conv_channels: tuple[int, int] = (128, 128), hidden: tuple[int, ...] = (256,)) -> None:
         super().__init__()
