@@ -24,7 +24,8 @@ def main() -> None:
         context = getattr(error, "ctx", None)
         bare_group = type(error).__name__ == "NoArgsIsHelpError"
         if bare_group or context is None:
-            error.show()
+            # typer declares show() on ClickException, a private class; every TyperException it raises is one
+            error.show()  # type: ignore[attr-defined]
         if context is not None:
             message = "missing command." if bare_group else " ".join(error.format_message().split())
             say_error(f"error: {context.command_path}: {message} (see '{context.command_path} -h')")

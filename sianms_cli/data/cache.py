@@ -419,14 +419,16 @@ def verify_cache(cache: str | Path, datasets: tuple[str, ...] = DATASETS) -> dic
         key = (str(real_path(cache)), _identity(cache / MANIFEST))
     except OSError:  # no manifest: complete_manifest says so
         key = None
-    if key is None or key not in _CHECKED_CACHES:
+    if key is not None and key in _CHECKED_CACHES:
+        manifest = _CHECKED_CACHES[key]
+    else:
         manifest = complete_manifest(cache)
         listed = _listed_files(cache, manifest)
         _refuse_unlisted(cache, listed)
         for name, entry in listed.items():
             check_shard_size(cache / name, entry)
-        _CHECKED_CACHES[key] = manifest
-    manifest = _CHECKED_CACHES[key]
+        if key is not None:
+            _CHECKED_CACHES[key] = manifest
     for name, entry in manifest["files"].items():
         if name.split("/")[0] in datasets:
             check_shard_file(cache / name, entry)
@@ -530,7 +532,7 @@ def require_unique(path: Path, ids: pa.ChunkedArray, field: str) -> None:
                                 f"{PREPARE_AGAIN}", token=str(repeated[0]["values"].as_py()), field=field)
 
 
-def roi_feature_shape(path: Path) -> tuple[int, ...]:
+def roi_feature_shape(path: Path) -> tuple[int, int, int]:
     """(C, PH, PW) of the ROI features in a detections file, from its metadata."""
     with reading_shard(path):
         metadata = pq.read_schema(path).metadata or {}
@@ -542,7 +544,8 @@ def roi_feature_shape(path: Path) -> tuple[int, ...]:
     if len(sizes) != 3 or not all(size.isdecimal() and 1 <= int(size) <= MAX_ROI_FEATURE_SIZE for size in sizes):
         raise DataFormatError(path, f"sianms.roi_feature_shape must be 'C,PH,PW', three whole numbers in "
                                     f"[1, {MAX_ROI_FEATURE_SIZE:,}], got '{text}'; {PREPARE_AGAIN}")
-    return tuple(int(size) for size in sizes)
+    channels, height, width = (int(size) for size in sizes)
+    return channels, height, width
 
 
 MAX_ROI_FEATURE_SIZE = 2**16  # past any backbone's channels or pooled size: an edited shape is refused

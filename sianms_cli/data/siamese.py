@@ -22,7 +22,7 @@ Detections without an instance (false positives) are never candidates.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Iterator
 
@@ -264,12 +264,10 @@ class PairingBatch:
         if len(parts) == 1:
             return parts[0]
         offsets = np.cumsum([0] + [len(part) for part in parts[:-1]])
-        return PairingBatch(
-            *(np.concatenate([getattr(p, name) for p in parts]) for name in ("reference", "positive", "candidates")),
-            np.concatenate([p.candidate_item + offset for p, offset in zip(parts, offsets)]),
-            *(np.concatenate([getattr(p, name) for p in parts])
-              for name in ("fallback", "reference_id", "positive_id", "candidate_id", "reference_instance",
-                           "candidate_instance", "scene_token")))
+        columns = {field.name: np.concatenate([getattr(p, field.name) for p in parts])
+                   for field in fields(PairingBatch) if field.name != "candidate_item"}
+        candidate_item = np.concatenate([p.candidate_item + offset for p, offset in zip(parts, offsets)])
+        return PairingBatch(candidate_item=candidate_item, **columns)
 
 
 def draw_scene_items(scene: Scene, rng: np.random.Generator) -> PairingBatch | None:

@@ -21,7 +21,7 @@ import re
 from contextlib import closing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Generator
 
 import numpy as np
 
@@ -352,7 +352,8 @@ def run(
 
 
 def _run_shards(preparer: Preparer, config: PrepareConfig, out: Path, todo: list[tuple[str, str]],
-                samples: dict[str, int], workers: int, progress: Progress) -> Iterator[tuple[str, str]]:
+                samples: dict[str, int], workers: int, progress: Progress
+                ) -> Generator[tuple[str, str], None, None]:
     """(shard, outcome) of each shard to do, in this process or in ``workers`` processes;
     ``samples`` counts each shard's samples for the progress of worker-written shards."""
     if workers == 1 or len(todo) <= 1:

@@ -187,10 +187,9 @@ class PreparedDetections:
     @staticmethod
     def concatenate(parts: list[PreparedDetections]) -> PreparedDetections:
         """The rows of several images one after the other (at least one part)."""
-        return PreparedDetections(**{
-            field.name: (Frustums.concatenate([part.frustums for part in parts]) if field.name == "frustums"
-                         else np.concatenate([getattr(part, field.name) for part in parts]))
-            for field in fields(PreparedDetections)})
+        columns = {field.name: np.concatenate([getattr(part, field.name) for part in parts])
+                   for field in fields(PreparedDetections) if field.name != "frustums"}
+        return PreparedDetections(frustums=Frustums.concatenate([part.frustums for part in parts]), **columns)
 
 
 def associate_and_fill(detections: Detections2D, target: GroundTruth2D, iou_threshold: float,
