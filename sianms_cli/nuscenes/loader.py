@@ -172,7 +172,8 @@ float64's range its corners would overflow."""
 
 
 def _box_sizes(column: np.ndarray) -> np.ndarray:
-    return ((column > 0) & (column <= MAX_BOX_SIZE)).all(axis=1)
+    # numpy's stubs type a reduction over one axis as a scalar or an array: here it is an array
+    return ((column > 0) & (column <= MAX_BOX_SIZE)).all(axis=1)  # type: ignore[return-value]
 
 
 def _non_negative(column: np.ndarray) -> np.ndarray:
@@ -299,8 +300,8 @@ class _ParsedTable:
                 if rule is not None:
                     _check_rule(self.path, records, first, values, field, column, rule)
                 del values
-                if kind.kind in _REF_KINDS and kind.table in parsed:
-                    column = self._resolve(field, kind, column, parsed[kind.table].index,
+                if kind.kind in _REF_KINDS and kind.referenced_table in parsed:
+                    column = self._resolve(field, kind, column, parsed[kind.referenced_table].index,
                                            pieces["token"][-1])
                 pieces[field].append(column)
             first += len(records)
@@ -347,7 +348,7 @@ class _ParsedTable:
         """Turn the references to every table in ``parsed`` into rows; DataFormatError for
         the first token that is not in its table."""
         for field, kind in list(self._unresolved.items()):
-            target = parsed.get(kind.table)
+            target = parsed.get(kind.referenced_table)
             if target is not None:
                 column = self.columns.pop(field)
                 self._store_rows(field, self._resolve(field, kind, column, target.index,
@@ -473,7 +474,7 @@ class Table:
         if kind.kind == "token":
             return self._tokens
         if kind.kind in _REF_KINDS:
-            return self._referenced_tokens(kind.table, self._rows[field])
+            return self._referenced_tokens(kind.referenced_table, self._rows[field])
         if kind.kind == "str":
             return np.char.decode(self._columns[field], _TEXT_ENCODING, _TEXT_ERRORS)
         return self._columns[field]
@@ -504,9 +505,9 @@ class Table:
                 value: Any = str(self._tokens[i])
             elif kind.kind in ("ref", "optional_ref"):
                 row = int(self._rows[field][i])
-                value = str(self._tables[kind.table].tokens[row]) if row >= 0 else ""
+                value = str(self._tables[kind.referenced_table].tokens[row]) if row >= 0 else ""
             elif kind.kind == "ref_list":
-                referenced = self._tables[kind.table].tokens
+                referenced = self._tables[kind.referenced_table].tokens
                 value = [str(referenced[row]) for row in self._rows[field][i] if row >= 0]
             elif kind.kind == "str":
                 value = self._columns[field][i].decode(_TEXT_ENCODING, _TEXT_ERRORS)

@@ -105,7 +105,7 @@ def rig_overlap_bits(centers_ego: np.ndarray, box_rig: np.ndarray, rigs: Sequenc
     return OverlapBits(tuple(names), bits)
 
 
-def box_overlap_pairs(db: NuScenesDB, sample_tokens: Sequence[str], box_sample: np.ndarray,
+def box_overlap_pairs(db: NuScenesDB, sample_tokens: Sequence[str] | np.ndarray, box_sample: np.ndarray,
                       centers: np.ndarray) -> OverlapBits:
     """THE overlap pairs of annotated boxes (see the module docstring).
 

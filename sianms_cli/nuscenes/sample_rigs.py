@@ -18,7 +18,7 @@ from sianms_cli.geometry.camera_ring import CameraRig
 from sianms_cli.nuscenes.loader import NuScenesDB
 
 
-def sample_rigs(db: NuScenesDB, sample_tokens: Sequence[str]) -> tuple[list[CameraRig], np.ndarray]:
+def sample_rigs(db: NuScenesDB, sample_tokens: Sequence[str] | np.ndarray) -> tuple[list[CameraRig], np.ndarray]:
     """The distinct rigs of some samples and which one each sample has.
 
     Args:

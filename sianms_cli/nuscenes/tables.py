@@ -80,6 +80,12 @@ class Field:
         assert (self.table is not None) == self.kind.endswith(("ref", "ref_list")), self
         assert (self.length > 0) == (self.kind == "vector"), self
 
+    @property
+    def referenced_table(self) -> str:
+        """The table a token reference (``ref``, ``optional_ref``, ``ref_list``) points into."""
+        assert self.table is not None, self  # __post_init__: every reference kind names its table
+        return self.table
+
 
 TOKEN = Field("token")
 STR = Field("str")

@@ -30,7 +30,7 @@ from sianms_cli.nuscenes.overlap import box_overlap_pairs, centers_in_ego, lidar
 from sianms_cli.nuscenes.tables import check_version_name
 from sianms_cli.reporting.ego_motion import COMMAND_LATERAL_M, TURN_DEGREES, ego_motion
 from sianms_cli.reporting.image_boxes import annotation_image_boxes
-from sianms_cli.reporting.nuscenes_reference import REFERENCE, reference_json
+from sianms_cli.reporting.nuscenes_reference import REFERENCE, reference_json, reference_per_name
 from sianms_cli.synth.marker import read_marker
 
 CAR = "vehicle.car"
@@ -451,7 +451,7 @@ def format_summary(summary: dict) -> str:
         + _versus("objects_per_keyframe"),
         "  objects per keyframe by detection class:" + _versus("objects_per_keyframe_by_class"),
     ]
-    by_class = REFERENCE["objects_per_keyframe_by_class"].value
+    by_class = reference_per_name("objects_per_keyframe_by_class")
     for name, value in summary["objects_per_keyframe_by_class"].items():
         lines.append(f"    {name:<22} {value:6.2f} | nuScenes {by_class[name]:5.2f}")
     lines += [
@@ -495,7 +495,9 @@ def _synth_marker_lines(marker: dict | None) -> list[str]:
     platform: other bytes)."""
     if marker is None:
         return []
-    config = marker.get("config") if isinstance(marker.get("config"), dict) else {}
+    config = marker.get("config")
+    if not isinstance(config, dict):
+        config = {}
     recorded = marker.get("platform")
     if not isinstance(recorded, dict):
         where = "platform not recorded"
@@ -519,9 +521,9 @@ def _condition_lines(conditions: dict, scenes: int) -> list[str]:
 
 def _class_range_lines(figures: dict) -> list[str]:
     """What the detection benchmark sees of the annotations: its class ranges."""
-    share = REFERENCE["share_in_class_range"].value
-    per_keyframe = REFERENCE["per_keyframe_in_class_range"].value
-    empty = REFERENCE["empty_share_by_class"].value
+    share = reference_per_name("share_in_class_range")
+    per_keyframe = reference_per_name("per_keyframe_in_class_range")
+    empty = reference_per_name("empty_share_by_class")
     lines = [
         f"  inside the devkit's class ranges: {_percent(figures['share_in_class_range'])} of the evaluated boxes"
         + _versus("share_in_class_range"),

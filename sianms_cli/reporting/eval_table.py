@@ -136,8 +136,8 @@ def table_markdown(table: Mapping[str, Any]) -> str:
                   "| method | " + " | ".join(pair_label(p) for p in pairs) + " |",
                   "|---|" + "---|" * len(pairs)]
         for m in methods:
-            cells = " | ".join(format_cell(table["regions"][p][m][name]["AP"], "AP") for p in pairs)
-            lines.append(f"| {m} | {cells} |")
+            pair_cells = " | ".join(format_cell(table["regions"][p][m][name]["AP"], "AP") for p in pairs)
+            lines.append(f"| {m} | {pair_cells} |")
     if table["reidentification"]:
         lines += ["", "Re-identification against ground-truth identity (pairs to find: the oracle's):", "",
                   "| matcher | matched | correct | to find | precision | recall | F1 | "

@@ -112,3 +112,10 @@ REFERENCE: dict[str, Reference] = {
 def reference_json() -> dict:
     """Every reference value as JSON, so an ``info`` output says what it was held against."""
     return {key: asdict(reference) for key, reference in REFERENCE.items()}
+
+
+def reference_per_name(key: str) -> dict[str, float]:
+    """The value of figure ``key``, one of those published per class or per bin."""
+    value = REFERENCE[key].value
+    assert isinstance(value, dict), key
+    return value

@@ -94,14 +94,15 @@ def parse_allowances(value: str | Mapping[str, float] | None) -> dict[str, float
 
     Raises SianmsError naming ``--max-drop`` and the bad key or value.
     """
+    pairs: list[tuple[str, str | float]]
     if value is None or isinstance(value, str):
         items = [item.strip() for item in (value or "").split(",") if item.strip()]
         pairs = []
         for item in items:
-            key, equals, number = item.partition("=")
+            name, equals, text = item.partition("=")
             if not equals:
                 raise SianmsError(f"--max-drop: '{item}' is not KEY=VALUE (keys: {', '.join(DEFAULT_ALLOWANCES)})")
-            pairs.append((key.strip(), number.strip()))
+            pairs.append((name.strip(), text.strip()))
     else:
         pairs = list(value.items())
     allowances = dict(DEFAULT_ALLOWANCES)
@@ -428,7 +429,8 @@ def document(summary: Mapping[str, Any], comparison: Mapping[str, Any] | None, f
     blocks += reid_blocks(summary) + duplicates_blocks(summary) + timing_blocks(summary)
     if figures or notes:
         blocks.append(Heading("Curves and pictures"))
-    blocks += [Paragraph(note) for note in notes] + figures
+    blocks += [Paragraph(note) for note in notes]
+    blocks += figures
     return blocks
 
 
@@ -685,15 +687,17 @@ def run(config: ReportConfig, out: str | Path | None = None, *, overwrite: bool 
                                                    f"is of {summary['table_class']!r}: no cell compares",
                                   field="table_class")
         differing = config_differences(summary, baseline)
+        allowances = config.max_drop
+        assert isinstance(allowances, Mapping)  # ReportConfig.__post_init__ resolved it to every allowance
         if differing and not config.force:
             raise SianmsError(f"--baseline: {config.baseline} was evaluated with another config (differs in: "
                               f"{', '.join(differing)}); pass --force to compare anyway")
         comparison = {
             "baseline": {"source": config.baseline, "eval": baseline["eval"], "fingerprints": baseline["fingerprints"]},
-            "allowances": dict(config.max_drop), "forced": config.force, "config_differences": differing,
+            "allowances": dict(allowances), "forced": config.force, "config_differences": differing,
             "fingerprints_changed": [name for name in FINGERPRINT_FIELDS
                                      if summary["fingerprints"].get(name) != baseline["fingerprints"].get(name)],
-            **compare(summary, baseline, config.max_drop)}
+            **compare(summary, baseline, allowances)}
         content["comparison"] = comparison
         content["regressions"] = [{key: row[key] for key in ("region", "method", "metric", "baseline", "now",
                                                              "allowance", "why")}

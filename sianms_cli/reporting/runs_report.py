@@ -178,7 +178,8 @@ def spread(values: Sequence[float | None]) -> dict[str, Any]:
     mean = float(present.mean()) if n else None
     sd = float(present.std(ddof=1)) if n >= 2 else None
     half = None if sd is None else float(t.ppf(0.5 + CONFIDENCE / 2, n - 1) * sd / math.sqrt(n))
-    return {"mean": mean, "sd": sd, "ci95": None if half is None else [mean - half, mean + half], "n": n,
+    interval = None if half is None or mean is None else [mean - half, mean + half]  # a half needs n >= 2
+    return {"mean": mean, "sd": sd, "ci95": interval, "n": n,
             "values": list(values)}
 
 
