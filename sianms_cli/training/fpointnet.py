@@ -290,7 +290,9 @@ def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config
     with no rows and a zero loss, until every rank's have. ``precision``: the forward passes'
     autocast and the backward step.
     """
-    network: FPointNetV1 = model.module if world > 1 else model
+    network = model.module if world > 1 else model
+    assert isinstance(network, FPointNetV1)  # the network, or the one its DDP wrapper holds
+    assert config.streams is not None  # run resolves None to one stream per process
     model.train()
     streams = [iterate_batches(config.cache, config.selection, stream.batch_size, stream.rng, True,
                                config.augmentation, unions=unions, shards=stream.shards)
@@ -317,15 +319,16 @@ def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config
             for term in LOSS_TERMS:
                 sums[term] += losses[term].item() * len(share)
         else:  # no rows here: the backward pass's collectives still need this rank, with zero gradients
-            loss = sum(value.sum() for value in outputs.values() if value.requires_grad).mul(0.0)
+            loss = sum((value.sum() for value in outputs.values() if value.requires_grad),
+                       torch.zeros((), device=device)).mul(0.0)
         precision.backward_step(loss, optimizer)
         seen += share.size
         union_seen += int(batch["union"].sum())
         samples += share.size
         progress.advance(share.size)
-    *totals, union_seen = sum_over_ranks([*(sums[term] for term in LOSS_TERMS), union_seen], device, world)
+    *totals, union_total = sum_over_ranks([*(sums[term] for term in LOSS_TERMS), union_seen], device, world)
     figures = {f"train_{term}": value / max(seen, 1) for term, value in zip(LOSS_TERMS, totals)}
-    return {**figures, "train_count": seen, "train_union_count": int(union_seen)}, samples
+    return {**figures, "train_count": seen, "train_union_count": int(union_total)}, samples
 
 
 def validate(model: FPointNetV1, config: FPointNetConfig, rng: np.random.Generator, generator: torch.Generator,
@@ -345,6 +348,7 @@ def validation_rows(model: FPointNetV1, config: FPointNetConfig, rng: np.random.
                     generator: torch.Generator, device: torch.device) -> dict[str, np.ndarray]:
     """Per validation frustum: class index, 3-D IoU, centre error, heading error (period 2π), whether
     the heading bin is right, segmentation accuracy, and its batch's loss ({} without frustums)."""
+    assert config.val_cache is not None, "validation rows need a validation cache"
     model.eval()
     rows: dict[str, list[np.ndarray]] = {key: [] for key in ("class", "iou", "center", "heading", "heading_bin",
                                                              "seg", "loss")}
@@ -387,6 +391,7 @@ def load_initial_weights(model: FPointNetV1, config: FPointNetConfig) -> np.ndar
     clusters (l, w, h), which the run keeps: its size residuals are relative to them. A checkpoint
     of other classes or another shape of network is refused, naming it and the first weight that
     differs (float16 zoo weights are cast to the model's float32 as they load)."""
+    assert config.init is not None, "fine-tuning needs the weights to start from"
     path = checkpoint_file(config.init)
     initial = load_checkpoint(path, "fpointnet")
     classes = initial.extra.get("classes")
@@ -427,11 +432,14 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
             complete_manifest(cache)
     counts, mean_sizes = size_clusters(config)
     rank, world, device = init_distributed(choose_device(config.device))
-    config = replace(config, streams=world if config.streams is None else config.streams)
-    check_streams(config.streams, world, config.batch_size, smallest=2)  # batch norm: two frustums per stream
+    streams = world if config.streams is None else config.streams
+    config = replace(config, streams=streams)
+    check_streams(streams, world, config.batch_size, smallest=2)  # batch norm: two frustums per stream
     precision = MixedPrecision(resolve_precision(config.precision, device), device)
-    union_settings = (multiview_settings(config.cache, config.dataroot, config.max_distance) if config.multiview
-                      else None)
+    union_settings = None
+    if config.multiview:
+        assert config.dataroot is not None  # __post_init__ refuses --multiview without --dataroot
+        union_settings = multiview_settings(config.cache, config.dataroot, config.max_distance)
     folder = RunFolder.open(out, kind="fpointnet", config=plain(asdict(config)), overwrite=overwrite,
                             resume=resume, may_differ=("epochs", "device", "precision"),
                             write=rank == 0, inputs=cache_inputs(config.cache, config.val_cache))
@@ -451,10 +459,11 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
         if folder.resumed is not None:
             folder.restore(model, optimizer)
             start, history = folder.resumed.epoch, list(folder.resumed.history)
-            samples = folder.resumed.extra.get("samples")
-            if not isinstance(samples, int) or isinstance(samples, bool) or samples < 0:
-                raise DataFormatError(folder.checkpoint_path, f"expected a sample count >= 0, got {samples!r}",
+            recorded = folder.resumed.extra.get("samples")
+            if not isinstance(recorded, int) or isinstance(recorded, bool) or recorded < 0:
+                raise DataFormatError(folder.checkpoint_path, f"expected a sample count >= 0, got {recorded!r}",
                                       field="extra.samples")
+            samples = recorded
             precision.restore(folder.resumed.extra)
         trained = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
         total = config.epochs * (int(counts.sum()) + sum(union_counts.values()))

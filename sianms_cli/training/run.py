@@ -55,6 +55,7 @@ import os
 import random
 import shutil
 import warnings
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Iterable, Sequence
@@ -465,7 +466,7 @@ class RunFolder:
         self.inputs = inputs  # the caches' fingerprints, kept in each checkpoint's extra
         self.replace = replace  # delete the run files found in the folder once its lock is held
         self.panels: Sequence[tuple[str, Sequence[str]]] | None = None  # curves.png layout (plot_curves)
-        self._lock = None
+        self._lock: AbstractContextManager[None] | None = None  # the folder's lock, held while the run writes
         self._made_folder = False  # this run created the folder
         self._found: set[str] = set()  # the folder's entries before this run wrote any
         self._saved = False  # this run wrote a checkpoint

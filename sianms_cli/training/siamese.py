@@ -132,7 +132,9 @@ def _mlp_weights(hidden: tuple[int, ...], dim: int) -> int:
 
 def build_model(config: SiameseConfig | dict[str, Any], feature_shape: tuple[int, int, int]) -> SiameseEncoder:
     """The encoder a config describes (from a checkpoint's config dict too)."""
-    get = config.get if isinstance(config, dict) else lambda key: getattr(config, key)
+    def get(key: str) -> Any:
+        return config[key] if isinstance(config, dict) else getattr(config, key)
+
     return SiameseEncoder(feature_shape, dim=get("dim"), conv_channels=tuple(get("conv_channels")),
                           hidden=tuple(get("hidden")))
 
@@ -159,6 +161,7 @@ def train_step(model: torch.nn.Module, optimizer: torch.optim.Optimizer, batch: 
     """
     model.train()
     encoder = model.module if world > 1 else model
+    assert isinstance(encoder, SiameseEncoder)  # the encoder, or the one its DDP wrapper holds
     k = len(batch)
     reference, positive = _tensor(batch.reference, device), _tensor(batch.positive, device)
     if k:
@@ -192,6 +195,7 @@ def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config
     streams' scenes and trains on its rows of every global batch (:mod:`sianms_cli.data.
     streams`), so K processes compute what one process with the same streams computes.
     """
+    assert config.streams is not None  # run resolves None to one stream per process
     rng = epoch_generator(config.seed, epoch)
     streams = [epoch_batches(config.cache, stream.batch_size, stream.rng, shards=stream.shards)
                for stream in rank_epoch_streams(shard_paths(config.cache), rng,
@@ -334,6 +338,7 @@ def embed_scene(model: SiameseEncoder, scene: Scene, device: torch.device) -> np
 
 def validate(model: SiameseEncoder, config: SiameseConfig, device: torch.device) -> dict[str, float]:
     """The learned embedding's validation figures (``val_*``), scene by scene."""
+    assert config.val_cache is not None, "validation needs a validation cache"
     groups = []
     for scene in iter_scenes(config.val_cache):
         groups += scene_groups(scene, embed_scene(model, scene, device))
@@ -390,8 +395,9 @@ def run(config: SiameseConfig, out: str | Path, *, overwrite: bool = False, resu
         raise SianmsError(f"--val-cache holds ROI features of shape {cache_feature_shape(config.val_cache)}, "
                           f"--cache {feature_shape}: prepare both with the same backbone and --roi-size")
     rank, world, device = init_distributed(choose_device(config.device))
-    config = replace(config, streams=world if config.streams is None else config.streams)
-    check_streams(config.streams, world, config.batch_size, smallest=1)
+    streams = world if config.streams is None else config.streams
+    config = replace(config, streams=streams)
+    check_streams(streams, world, config.batch_size, smallest=1)
     precision = MixedPrecision(resolve_precision(config.precision, device), device)
     resolved = config.resolved() | {"feature_shape": list(feature_shape)}
     folder = RunFolder.open(out, kind=KIND, config=resolved, overwrite=overwrite, resume=resume,
@@ -414,7 +420,7 @@ def run(config: SiameseConfig, out: str | Path, *, overwrite: bool = False, resu
             history, start = list(folder.resumed.history), folder.resumed.epoch
             precision.restore(folder.resumed.extra)
         trained = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
-        reference = baseline(config.val_cache) if validating else {}
+        reference = baseline(config.val_cache) if validating and config.val_cache is not None else {}
         dis_thr = (config.alpha + config.beta) / 2
         if history and "val_dis_thr" in history[-1]:
             dis_thr = history[-1]["val_dis_thr"]
@@ -491,7 +497,8 @@ def encoder_from_checkpoint(checkpoint: Checkpoint, path: Path,
             and dis_thr > 0):
         raise DataFormatError(path, f"no finite matching threshold > 0 (got {dis_thr!r})", field="extra.dis_thr")
     try:
-        model = build_model(config, tuple(int(v) for v in shape))
+        channels, height, width = (int(v) for v in shape)  # three: checked above
+        model = build_model(config, (channels, height, width))
     except (TypeError, ValueError, RuntimeError) as error:  # torch refuses a negative width with a RuntimeError
         raise DataFormatError(path, f"the stored config does not describe an encoder ({error})",
                               field="config") from None
