@@ -8,6 +8,7 @@ the point ``p``; the quaternion ``q`` and the matrix ``quat_to_matrix(q)`` rotat
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from sianms_cli.errors import SianmsError
 
@@ -19,7 +20,7 @@ def _normalise(q: np.ndarray) -> np.ndarray:
     return q / norm
 
 
-def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+def quat_to_matrix(q: ArrayLike) -> np.ndarray:
     """Rotation matrices of quaternions.
 
     Args:

@@ -9,11 +9,12 @@ child-to-parent rotations and translations.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from sianms_cli.geometry.quaternion import matrix_to_quat, quat_multiply, quat_to_matrix
 
 
-def make_transform(rotation_quat: np.ndarray, translation: np.ndarray) -> np.ndarray:
+def make_transform(rotation_quat: ArrayLike, translation: ArrayLike) -> np.ndarray:
     """Child-to-parent transform of a pose record.
 
     Args:

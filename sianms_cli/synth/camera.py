@@ -234,10 +234,10 @@ def _ground_depth(view: _View, ray_len: np.ndarray) -> np.ndarray:
     # somewhere, one range of rows, can see the ground.
     a, b, c = view.rays[2]
     row_slope = b * np.arange(view.height) + c
-    rows = np.flatnonzero(row_slope + min(0.0, a * (view.width - 1)) < 0.0)
-    if height <= 0.0 or len(rows) == 0:
+    below = np.flatnonzero(row_slope + min(0.0, a * (view.width - 1)) < 0.0)
+    if height <= 0.0 or len(below) == 0:
         return depth.reshape(-1)
-    rows = slice(rows[0], rows[-1] + 1)
+    rows = slice(below[0], below[-1] + 1)
     slope = a * np.arange(view.width) + row_slope[rows, None]
     with np.errstate(divide="ignore"):
         # float64 division: near the horizon the slope is tiny. Negative where the ray goes up.
@@ -840,11 +840,12 @@ def _night_sources(parts: Parts, view: _View, emission: np.ndarray, wet: bool) -
 
 
 def _lighting(conditions: Conditions, sun: np.ndarray, sky_seed: int, parts: Parts, view: _View,
-              emission: np.ndarray) -> _Lighting:
-    """How a frame is lit under its conditions (see `_Lighting`)."""
+              emission: np.ndarray | None) -> _Lighting:
+    """How a frame is lit under its conditions (see `_Lighting`); ``emission`` is a night frame's."""
     sky = _sky(conditions, sun, sky_seed)
     wetness = WET_ROAD_MIRROR if conditions.rain else 0.0
     if conditions.night:
+        assert emission is not None, "a night frame's lamps need their emission"
         lights, glints = _night_sources(parts, view, emission, conditions.rain)
         ambient, sun_light, haze = NIGHT_AMBIENT, np.zeros(3, _F32), NIGHT_HORIZON
     else:
@@ -894,6 +895,7 @@ class _PartTable:
 
 def _part_table(parts: Parts, view: _View) -> _PartTable:
     """The shading table of every part."""
+    assert parts.albedo is not None  # Parts.__post_init__ fills it in where not given
     seed = (np.abs(np.sin(parts.center[:, 0] * 12.9898 + parts.center[:, 1] * 78.233)) * 43758.55) % 1.0
     return _PartTable(np.ascontiguousarray((parts.center - view.origin).T, _F32), np.cos(parts.yaw).astype(_F32),
                       np.sin(parts.yaw).astype(_F32), np.ascontiguousarray(parts.half_size.T, _F32),
@@ -1292,9 +1294,9 @@ def _lens_drops(image: np.ndarray, rng: np.random.Generator) -> None:
             continue
         window, mask, dv = disc
         around = _disc(image, cu, cv, 2.5 * r)[0]
-        blurred = image[(slice(None), *around)].mean(axis=(1, 2), dtype=np.float64).astype(_F32)
+        blurred = image[:, around[0], around[1]].mean(axis=(1, 2), dtype=np.float64).astype(_F32)
         drop = blurred[:, None, None] * (_F32(1.1) + _F32(0.35) * dv)
-        patch = image[(slice(None), *window)]
+        patch = image[:, window[0], window[1]]
         patch += (drop - patch) * (_F32(0.9) * mask)
 
 
@@ -1323,7 +1325,7 @@ def _lens_flare(image: np.ndarray, lighting: _Lighting, view: _View) -> None:
         disc = _disc(image, su + along * (cu - su), sv + along * (cv - sv), size * width)
         if disc is not None:
             window, mask, _ = disc
-            image[(slice(None), *window)] += np.array(colour, _F32)[:, None, None] * (strength * mask)
+            image[:, window[0], window[1]] += np.array(colour, _F32)[:, None, None] * (strength * mask)
 
 
 def _apply_style(radiance: np.ndarray, gain: np.ndarray, noise_std: float, vignetting: float, view: _View,

@@ -324,5 +324,6 @@ def _projected_half(axes, half: np.ndarray, axis: np.ndarray) -> np.ndarray:
 
 
 def _select(parts: Parts, keep: np.ndarray) -> Parts:
+    assert parts.albedo is not None  # Parts.__post_init__ fills it in where not given
     return Parts(parts.center[keep], parts.half_size[keep], parts.yaw[keep], parts.owner[keep],
                  parts.material[keep], parts.albedo[keep])

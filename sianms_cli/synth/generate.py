@@ -28,7 +28,7 @@ import re
 from contextlib import closing
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable, Generator, Iterator
 
 import numpy as np
 
@@ -57,6 +57,8 @@ from sianms_cli.synth.nuscenes_rig import (
     RIG_BOSTON,
     RIG_SINGAPORE,
     SensorCalibration,
+    as_rotation,
+    as_translation,
     lidar_column_seconds,
     lidar_start_azimuth,
     normalised_rig,
@@ -324,7 +326,12 @@ def _write_dataset(staging: Path, config: SynthConfig, names: list[str], progres
     io.write_json(staging / MARKER_NAME, make_marker(dataclasses.asdict(resolved)))
 
 
-def _sensed_scenes(jobs: list[tuple], workers: int, progress: Progress) -> Iterator[list[tuple[str, dict]]]:
+_SceneJob = tuple[Path, SynthConfig, int, str]
+"""One scene to sense: the staging folder, the config, the scene's index and name (:func:`_scene_records`)."""
+
+
+def _sensed_scenes(jobs: list[_SceneJob], workers: int, progress: Progress
+                   ) -> Generator[list[tuple[str, dict]], None, None]:
     """Records of every scene, in scene order, sensed here or in ``workers`` processes.
 
     Progress advances per keyframe here, per scene from workers. Closing the iterator early
@@ -340,7 +347,7 @@ def _sensed_scenes(jobs: list[tuple], workers: int, progress: Progress) -> Itera
             yield records
 
 
-def _sense_scene(job: tuple) -> list[tuple[str, dict]]:
+def _sense_scene(job: _SceneJob) -> list[tuple[str, dict]]:
     """:func:`_scene_records` of one job, in a worker process."""
     return _scene_records(*job)
 
@@ -398,8 +405,8 @@ def _scene_record_stream(staging: Path, config: SynthConfig, index: int, name: s
                          on_keyframe: Callable[[], object] | None) -> Iterator[tuple[str, dict]]:
     seed = config.seed
     location = _scene_location(seed, index)
-    vehicle, rig, drive_side, utc = LOCATIONS[location]
-    rig = _perturbed_rig(normalised_rig(rig), _scene_rng(seed, index, "calibration"))
+    vehicle, published_rig, drive_side, utc = LOCATIONS[location]
+    rig = _perturbed_rig(normalised_rig(published_rig), _scene_rng(seed, index, "calibration"))
     plan = plan_scene(_scene_rng(seed, index, "plan"), drive_side)
     conditions = _scene_conditions(seed, index)
     start = _scene_start(seed, index, location, conditions.night)
@@ -501,8 +508,8 @@ def _perturbed_rig(rig: tuple[SensorCalibration, ...], rng: np.random.Generator)
         rotation /= np.linalg.norm(rotation)
         perturbed.append(dataclasses.replace(
             calibration,
-            translation=tuple(float(v) for v in translation),
-            rotation=tuple(float(v) for v in rotation),
+            translation=as_translation(translation),
+            rotation=as_rotation(rotation),
         ))
     return tuple(perturbed)
 
@@ -828,12 +835,12 @@ def _annotation_records(plan: ScenePlan, frames: list[_Frame], sample_tokens: li
         keyframes = np.flatnonzero(keep[:, owner])
         instance = make_token("instance", seed, name, int(owner))
         tokens = [make_token("sample_annotation", instance, int(k)) for k in keyframes]
-        for j, k in enumerate(keyframes):
-            frame = frames[k]
+        for j, keyframe in enumerate(keyframes):
+            frame = frames[keyframe]
             attribute = frame.attributes[owner]
             yield "sample_annotation", {
                 "token": tokens[j],
-                "sample_token": sample_tokens[k],
+                "sample_token": sample_tokens[keyframe],
                 "instance_token": instance,
                 "visibility_token": str(_visibility_token(frame.visibility[owner:owner + 1])[0]),
                 "attribute_tokens": [attribute_token(attribute)] if attribute else [],
@@ -843,7 +850,7 @@ def _annotation_records(plan: ScenePlan, frames: list[_Frame], sample_tokens: li
                 "prev": tokens[j - 1] if j > 0 else "",
                 "next": tokens[j + 1] if j + 1 < len(tokens) else "",
                 "num_lidar_pts": int(frame.lidar_points[owner]),
-                "num_radar_pts": int(radar[k, owner]),
+                "num_radar_pts": int(radar[keyframe, owner]),
             }
         yield "instance", {
             "token": instance,

@@ -235,8 +235,8 @@ def _nearest_hits(ray, part, origins, dirs, parts: Parts, t_max, motion: PartMot
     half = parts.half_size.astype(np.float32)
     c, s = np.cos(parts.yaw), np.sin(parts.yaw)
     moving = motion is not None
-    velocity = motion.velocity if moving else np.zeros((0, 3))
-    seconds = motion.ray_seconds if moving else np.zeros(0)
+    velocity = motion.velocity if motion is not None else np.zeros((0, 3))
+    seconds = motion.ray_seconds if motion is not None else np.zeros(0)
     t_best, part_best, face = _nearest_entries(ray, part, origins, dirs, parts.center, half, c, s, moving, velocity,
                                                seconds, t_max, np.float32(T_MIN), _MAX_PAIRS)
     return t_best.astype(np.float64), part_best, _face_normals(face, part_best, c, s)
@@ -569,6 +569,7 @@ def scan_lidar(parts: Parts, lidar_to_world, rng: np.random.Generator, ground_re
     inflate = np.full(len(parts), spread + 1e-3)
     motion = None
     if part_velocity is not None and len(parts):
+        assert column_seconds is not None, "moving parts need each column's firing time"
         inflate += np.linalg.norm(part_velocity, axis=1) * np.abs(column_seconds).max()
         motion = PartMotion(np.asarray(part_velocity, np.float64), np.repeat(column_seconds, beams))
     az_margin, el_margin = _direction_margins(dirs, level, start_azimuth, azimuth_steps)

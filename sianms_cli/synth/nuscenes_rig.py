@@ -33,6 +33,18 @@ CAMERA_TRIGGER_OFFSET_US = {
 }
 
 
+def as_translation(values: np.ndarray) -> tuple[float, float, float]:
+    """A (3,) translation as the floats a calibrated_sensor record holds."""
+    x, y, z = (float(v) for v in values)
+    return x, y, z
+
+
+def as_rotation(values: np.ndarray) -> tuple[float, float, float, float]:
+    """A (4,) quaternion (w, x, y, z) as the floats a calibrated_sensor record holds."""
+    w, x, y, z = (float(v) for v in values)
+    return w, x, y, z
+
+
 @dataclass(frozen=True)
 class SensorCalibration:
     """One calibrated_sensor record: sensor -> ego pose and, for cameras, intrinsics."""
@@ -97,7 +109,7 @@ def normalised_rig(rig: tuple[SensorCalibration, ...]) -> tuple[SensorCalibratio
         SensorCalibration(
             c.channel,
             c.translation,
-            tuple(float(v) for v in np.asarray(c.rotation) / np.linalg.norm(c.rotation)),
+            as_rotation(np.asarray(c.rotation) / np.linalg.norm(c.rotation)),
             c.focal,
             c.principal,
         )
@@ -158,6 +170,6 @@ def true_calibration(calibration: SensorCalibration, rng: np.random.Generator) -
     rotation = quat_multiply(np.asarray(calibration.rotation, np.float64), residual)
     return dataclasses.replace(
         calibration,
-        translation=tuple(float(v) for v in np.asarray(calibration.translation) + offset),
-        rotation=tuple(float(v) for v in rotation / np.linalg.norm(rotation)),
+        translation=as_translation(np.asarray(calibration.translation) + offset),
+        rotation=as_rotation(rotation / np.linalg.norm(rotation)),
     )

@@ -21,6 +21,7 @@ alone (``generate.SINGLE_POINT_SIGHTING_RANGE`` says why).
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 RADAR_MOUNTS = np.array([
     (3.412, 0.0, 0.0),  # RADAR_FRONT: x, y (m, ego frame), yaw (degrees)
@@ -80,7 +81,7 @@ def in_radar_field(xy: np.ndarray) -> np.ndarray:
     return (near | far).any(axis=-1)
 
 
-def returns_at_10_m(kinds: np.ndarray) -> np.ndarray:
+def returns_at_10_m(kinds: ArrayLike) -> np.ndarray:
     """(N,) RETURNS_AT_10_M of each object's shape kind (N,)."""
     names, inverse = np.unique(np.asarray(kinds, dtype=str), return_inverse=True)
     return np.array([RETURNS_AT_10_M[name] for name in names], dtype=np.float64)[inverse.reshape(-1)]

@@ -132,6 +132,7 @@ def place_parts(parts: Parts, center: np.ndarray, yaw: float, owner: int) -> Par
     (metres); yaw radians about +z; owner: object index written into every part (-1 for
     scenery). Returns a new `Parts` in the global frame.
     """
+    assert parts.albedo is not None  # __post_init__ fills it in where not given
     c, s = np.cos(yaw), np.sin(yaw)
     rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     return Parts(

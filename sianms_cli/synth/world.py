@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from functools import cached_property
+from typing import Sequence
 
 import numpy as np
 
@@ -909,7 +910,8 @@ def _place_flowing_arm(agents: AgentList, rng, street: Street, intersection: Int
     return through
 
 
-def _place_driveways(agents: AgentList, rng, street: Street, ego: EgoDrive, crossing: list) -> list:
+def _place_driveways(agents: AgentList, rng, street: Street, ego: EgoDrive,
+                     crossing: list) -> list[tuple[int, float, float]]:
     """Cars waiting in driveways beside the ego's drive, nose to the road just behind the
     pavement, that pull out during the scene and turn into the near or far lane (stopped,
     driver on board, until they go). Returns [(side, s_min, s_max)] of the driveways, kept
@@ -917,7 +919,7 @@ def _place_driveways(agents: AgentList, rng, street: Street, ego: EgoDrive, cros
     section = street.section
     travel = ego.speed * SCENE_SECONDS + 0.5 * ego.accel * SCENE_SECONDS**2
     spans = _turn_spans(street)
-    driveways = []
+    driveways: list[tuple[int, float, float]] = []
     for _ in range(int(rng.poisson(DRIVEWAYS_PER_SCENE))):
         side = int(rng.choice([-1, 1]))
         s = float(rng.uniform(ego.s0 - 30.0, ego.s0 + travel + 30.0))
@@ -992,9 +994,8 @@ def _drop_junction_conflicts(agents: Agents, rows: list, street: Street, ego: Eg
     ``GIVE_WAY_TRIES`` times; after that it is left out, so every track stays collision-free."""
     if not rows:
         return agents
-    rows = np.array(sorted(set(rows)))
     times = np.arange(0.0, SCENE_SECONDS + 1e-9, JUNCTION_CHECK_STEP)
-    checked = rows
+    checked = np.array(sorted(set(rows)))
     clash = np.zeros(len(agents), bool)
     for attempt in range(GIVE_WAY_TRIES + 1):
         found = (closest_approach(agents, street, checked, times, ego) < CLEARANCE).any(axis=1)
@@ -1043,7 +1044,7 @@ def _place_arriving_queue(agents: AgentList, rng, street: Street, intersection: 
 
 
 def _place_departing_lane(agents: AgentList, rng, street: Street, intersection: Intersection, arm: int,
-                          busyness: float, speed: float | None = None, upstream: list = (),
+                          busyness: float, speed: float | None = None, upstream: Sequence = (),
                           crossing: list | None = None) -> None:
     """Cars driving away from the junction along ``arm`` at one shared speed, behind them
     the ``upstream`` cars (category, size, distance before the junction centre) of a flowing
@@ -1165,7 +1166,7 @@ def _free_stretch(street: Street, s: float) -> tuple[float, float]:
     return lo, hi
 
 
-def _place_buildings(rng: np.random.Generator, street: Street, driveways: list = ()) -> tuple[Building, ...]:
+def _place_buildings(rng: np.random.Generator, street: Street, driveways: Sequence = ()) -> tuple[Building, ...]:
     """Blocks along both sides, set back from the pavement (and behind the car parks), none
     across a crossing street or a driveway ((side, s_min, s_max) each)."""
     buildings = []
