@@ -193,8 +193,7 @@ class CameraRig:
         Returns:
             (N,) bool.
         """
-        # numpy's stubs type a reduction over one axis as a scalar or an array: here it is an array
-        return self.overlap_pairs(points_ego).any(axis=1)  # type: ignore[return-value]
+        return np.any(self.overlap_pairs(points_ego), axis=1)
 
 
 def _clockwise_order(azimuths: np.ndarray) -> np.ndarray:

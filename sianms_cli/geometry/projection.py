@@ -209,10 +209,9 @@ def box_in_image(
         & (depth > 1)
     )
     all_in_front = (depth > 0.1).all(axis=1)
-    # numpy's stubs type a reduction over one axis as a scalar or an array: here each is an array
     if level is BoxVisibility.ALL:
-        return visible.all(axis=1) & all_in_front  # type: ignore[return-value]
-    return visible.any(axis=1) & all_in_front  # type: ignore[return-value]
+        return np.all(visible, axis=1) & all_in_front
+    return np.any(visible, axis=1) & all_in_front
 
 
 def _visibility(vis_level: BoxVisibility | int | str) -> BoxVisibility:

@@ -172,8 +172,7 @@ float64's range its corners would overflow."""
 
 
 def _box_sizes(column: np.ndarray) -> np.ndarray:
-    # numpy's stubs type a reduction over one axis as a scalar or an array: here it is an array
-    return ((column > 0) & (column <= MAX_BOX_SIZE)).all(axis=1)  # type: ignore[return-value]
+    return np.all((column > 0) & (column <= MAX_BOX_SIZE), axis=1)
 
 
 def _non_negative(column: np.ndarray) -> np.ndarray:
