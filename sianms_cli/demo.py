@@ -114,7 +114,7 @@ class DemoConfig:
     """What `sianms demo` runs: a profile, the seed, and any of the profile's sizes overridden."""
 
     quick: bool = False
-    seed: int | None = None  # None: the profile's (PROFILE_SEEDS)
+    seed: int | None = None  # as asked; None: the profile's (run_seed)
     version: str = "v1.0-mini"
     scenes: int | None = None
     siamese_epochs: int | None = None
@@ -123,9 +123,7 @@ class DemoConfig:
     train_fpointnet: bool = False  # train Frustum PointNets as a stage instead of evaluating the zoo's
 
     def __post_init__(self) -> None:
-        if self.seed is None:
-            object.__setattr__(self, "seed", PROFILE_SEEDS[self.profile])
-        check_seed(self.seed)
+        check_seed(self.run_seed)
         if self.precision not in DEMO_PRECISIONS:
             raise SianmsError(f"--precision must be {' or '.join(DEMO_PRECISIONS)} (the demo trains on the CPU), "
                               f"got '{self.precision}'")
@@ -145,6 +143,11 @@ class DemoConfig:
     @property
     def profile(self) -> str:
         return "quick" if self.quick else "default"
+
+    @property
+    def run_seed(self) -> int:
+        """The seed every stage runs with: the one asked for, or the profile's (PROFILE_SEEDS)."""
+        return PROFILE_SEEDS[self.profile] if self.seed is None else self.seed
 
     @property
     def splits(self) -> tuple[str, str]:
@@ -169,7 +172,7 @@ class DemoConfig:
         return STAGES if self.train_fpointnet else tuple(stage for stage in STAGES if stage != "fpointnet")
 
     def resolved(self) -> dict[str, Any]:
-        return {"profile": self.profile, "seed": self.seed, "version": self.version, **asdict(self.settings),
+        return {"profile": self.profile, "seed": self.run_seed, "version": self.version, **asdict(self.settings),
                 "precision": self.precision, "fpointnet": self.fpointnet}
 
 
@@ -193,7 +196,7 @@ def _synth(config: DemoConfig, out: Path, progress: Progress, workers: int) -> N
 
     settings = config.settings
     run(SynthConfig(version=config.version, scenes=settings.scenes, image_scale=settings.image_scale,
-                    scene_seconds=settings.scene_seconds, seed=config.seed),
+                    scene_seconds=settings.scene_seconds, seed=config.run_seed),
         out / FOLDERS["synth"], overwrite=True, progress=progress, workers=workers)
 
 
@@ -204,7 +207,7 @@ def _prepare(stage: str) -> Callable[[DemoConfig, Path, Progress, int], None]:
 
         train, val = config.splits
         run(PrepareConfig(dataroot=str(out / FOLDERS["synth"]), version=config.version,
-                          split=val if stage == "prepare-val" else train, seed=config.seed),
+                          split=val if stage == "prepare-val" else train, seed=config.run_seed),
             out / FOLDERS[stage], progress=progress)
     return prepare
 
@@ -214,7 +217,7 @@ def _siamese(config: DemoConfig, out: Path, progress: Progress, workers: int) ->
 
     settings = config.settings
     run(SiameseConfig(cache=str(out / FOLDERS["prepare-train"]), val_cache=str(out / FOLDERS["prepare-val"]),
-                      lr=settings.siamese_lr, epochs=settings.siamese_epochs, seed=config.seed, device="cpu",
+                      lr=settings.siamese_lr, epochs=settings.siamese_epochs, seed=config.run_seed, device="cpu",
                       precision=config.precision),
         out / FOLDERS["siamese"], resume=True, progress=progress)
 
@@ -226,7 +229,7 @@ def _fpointnet(config: DemoConfig, out: Path, progress: Progress, workers: int) 
     run(FPointNetConfig(cache=str(out / FOLDERS["prepare-train"]), val_cache=str(out / FOLDERS["prepare-val"]),
                         num_points=settings.num_points, num_object_points=settings.num_object_points,
                         min_box_height=settings.min_box_height, epochs=settings.fpointnet_epochs,
-                        batch_size=settings.fpointnet_batch_size, seed=config.seed, device="cpu",
+                        batch_size=settings.fpointnet_batch_size, seed=config.run_seed, device="cpu",
                         precision=config.precision),
         out / FOLDERS["fpointnet"], resume=True, progress=progress)
 
@@ -237,7 +240,7 @@ def _eval(config: DemoConfig, out: Path, progress: Progress, workers: int) -> No
     run(EvalConfig(dataroot=str(out / FOLDERS["synth"]), version=config.version, split=config.splits[1],
                    cache=str(out / FOLDERS["prepare-val"]), siamese=str(out / FOLDERS["siamese"]),
                    fpointnet=str(out / FOLDERS["fpointnet"]) if config.train_fpointnet else ZOO_FPOINTNET,
-                   nms_sweep=config.settings.nms_sweep, seed=config.seed),
+                   nms_sweep=config.settings.nms_sweep, seed=config.run_seed),
         out / FOLDERS["eval"], progress=progress)
 
 

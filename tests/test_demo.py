@@ -150,7 +150,8 @@ def test_profiles_and_overrides():
     custom = DemoConfig(scenes=4, siamese_epochs=2, fpointnet_epochs=5, train_fpointnet=True).settings
     assert (custom.scenes, custom.siamese_epochs, custom.fpointnet_epochs) == (4, 2, 5)
     assert demo.DEFAULT.min_box_height == pytest.approx(25.0 * demo.DEFAULT.image_scale)
-    assert (DemoConfig().seed, DemoConfig(quick=True).seed, DemoConfig(quick=True, seed=0).seed) == (0, 1, 0)
+    seeds = DemoConfig().run_seed, DemoConfig(quick=True).run_seed, DemoConfig(quick=True, seed=0).run_seed
+    assert seeds == (0, 1, 0)
     resolved = DemoConfig(quick=True, seed=4).resolved()
     assert resolved["profile"] == "quick" and resolved["seed"] == 4 and resolved["scenes"] == demo.QUICK.scenes
     assert resolved["version"] == "v1.0-mini" and DemoConfig().splits == ("mini_train", "mini_val")
