@@ -1,9 +1,10 @@
 """Frustum-level figures of a Frustum PointNets on a held-out cache, as the training's validation
 computes them (per class: 3-D IoU >= 0.5 and >= 0.7 rates, centre error, heading error as the AOE
 counts it and modulo π, heading-bin accuracy, segmentation accuracy) and how the heading errs
-(within 30° of the truth, turned front to back within 30° of π, or off the axis), for a zoo entry's
-model card. ``--devkit`` adds the official devkit's per-class figures from scripts/devkit_dump.py's
-output (AP in %, ATE, ASE, AOE, ground-truth boxes).
+(within 30° of the truth, turned front to back within 30° of π, or off the axis), overall and by
+the box's range from the camera, for a zoo entry's model card. ``--devkit`` adds the official
+devkit's per-class figures from scripts/devkit_dump.py's output (AP in %, ATE, ASE, AOE,
+ground-truth boxes).
 
 The 2-D boxes are the cache's (detections associated with ground truth, or projected ground truth),
 so these figures measure the 3-D stage alone; `sianms eval` and `sianms metrics` score the boxes a
@@ -31,6 +32,8 @@ from sianms_cli.training.run import checkpoint_file, load_checkpoint
 DEVKIT_CLASSES = ("car", "pedestrian", "bicycle")
 TURN = np.pi / 6
 """A heading within this of the truth is right; within this of the truth turned by π, flipped."""
+RANGES = ((0.0, 15.0), (15.0, 30.0), (30.0, np.inf))
+"""Bands of the box centre's range from the camera (m) the heading outcomes are also split by."""
 
 
 def held_out_figures(fpointnet: str, cache: str, seed: int = 0) -> dict[str, dict[str, float]]:
@@ -49,6 +52,12 @@ def held_out_figures(fpointnet: str, cache: str, seed: int = 0) -> dict[str, dic
     rows = validation_rows(model, config, *draws())
     for k, name in enumerate(config.classes):
         grouped[f"{name}, frustums"].update(heading_outcomes(rows["heading"][rows["class"] == k]))
+        for near, far in RANGES:
+            keep = (rows["class"] == k) & (rows["range"] >= near) & (rows["range"] < far)
+            band = f"{near:.0f}-{far:.0f} m" if np.isfinite(far) else f">= {near:.0f} m"
+            if keep.any():
+                grouped[f"{name}, frustums at {band}"] = {"count": int(keep.sum()),
+                                                         **heading_outcomes(rows["heading"][keep])}
     return grouped
 
 

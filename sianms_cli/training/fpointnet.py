@@ -347,11 +347,12 @@ def validate(model: FPointNetV1, config: FPointNetConfig, rng: np.random.Generat
 def validation_rows(model: FPointNetV1, config: FPointNetConfig, rng: np.random.Generator,
                     generator: torch.Generator, device: torch.device) -> dict[str, np.ndarray]:
     """Per validation frustum: class index, 3-D IoU, centre error, heading error (period 2π), whether
-    the heading bin is right, segmentation accuracy, and its batch's loss ({} without frustums)."""
+    the heading bin is right, segmentation accuracy, its batch's loss, and the range of the box's
+    centre from the camera ({} without frustums)."""
     assert config.val_cache is not None, "validation rows need a validation cache"
     model.eval()
     rows: dict[str, list[np.ndarray]] = {key: [] for key in ("class", "iou", "center", "heading", "heading_bin",
-                                                             "seg", "loss")}
+                                                             "seg", "loss", "range")}
     for batch in iterate_batches(config.val_cache, config.selection, config.batch_size, rng, False):
         tensors = to_tensors(batch, len(config.classes), device)
         prediction = predict(model, tensors, generator)
@@ -362,6 +363,7 @@ def validation_rows(model: FPointNetV1, config: FPointNetConfig, rng: np.random.
         rows["iou"].append(box_iou3d(center, prediction["box_lwh"].double().cpu().numpy(), heading,
                                      batch["center"], batch["lwh"], batch["heading"]))
         rows["center"].append(np.linalg.norm(center - batch["center"], axis=1))
+        rows["range"].append(np.linalg.norm(batch["center"], axis=1))
         rows["heading"].append(np.abs(np.remainder(heading - batch["heading"] + np.pi, 2 * np.pi) - np.pi))
         target_bin = angle_to_class(tensors["heading"], model.num_heading_bins)[0]
         rows["heading_bin"].append((prediction["heading_scores"].argmax(dim=1) == target_bin).cpu().numpy())

@@ -171,8 +171,10 @@ def test_the_held_out_script_splits_each_class_heading_errors_and_reads_the_devk
     assert result.returncode == 0, result.stderr
     figures = json.loads(out.read_text())["figures"]
     seen = [group for group, values in figures.items()
-            if group.endswith(", frustums") and group != "all, frustums" and values.get("count")]
+            if ", frustums" in group and group != "all, frustums" and values.get("count")]
     assert "car, frustums" in seen
+    bands = [group for group in seen if group.startswith("car, frustums at ")]
+    assert bands and sum(figures[group]["count"] for group in bands) == figures["car, frustums"]["count"]
     for values in (figures[group] for group in seen):
         shares = values["heading_right"] + values["heading_flipped"] + values["heading_off_axis"]
         assert shares == pytest.approx(1, abs=2e-4)  # each share rounded to 4 places
