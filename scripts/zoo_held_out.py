@@ -65,9 +65,9 @@ def heading_outcomes(errors: np.ndarray) -> dict[str, float]:
     """Shares of heading ``errors`` (radians, in [0, π]) that are right, flipped front to back, or off the axis."""
     if not len(errors):
         return {}
-    right, flipped = float(np.mean(errors < TURN)), float(np.mean(errors > np.pi - TURN))
-    return {"heading_right": round(right, 4), "heading_flipped": round(flipped, 4),
-            "heading_off_axis": round(1 - right - flipped, 4)}
+    right, flipped = errors < TURN, errors > np.pi - TURN
+    return {"heading_right": round(float(right.mean()), 4), "heading_flipped": round(float(flipped.mean()), 4),
+            "heading_off_axis": round(float((~right & ~flipped).mean()), 4)}
 
 
 def devkit_figures(path: str) -> dict[str, dict[str, float]]:
