@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import os
 import re
+import select
 import signal
 from pathlib import Path
 from typing import Callable, NoReturn
@@ -223,17 +224,29 @@ def raise_as_interrupted_or_again(error: Exception) -> NoReturn:
     raise typer.Exit(128 + signum) from None
 
 
-def command(name: str, group: typer.Typer | None = None) -> Callable[[Callable], Callable]:
-    """Register a subcommand (of ``group``, default the root) whose failures end in one
-    ``error:`` line, never a traceback.
+def standard_output_reader_gone() -> bool:
+    """Whether standard output is a pipe whose reading end has been closed (poll reports an
+    error on the writing end), as opposed to another pipe of the command breaking."""
+    try:
+        poller = select.poll()
+        poller.register(1, select.POLLOUT)
+        return any(events & select.POLLERR for _, events in poller.poll(0))
+    except (OSError, AttributeError):  # no fd 1, or no poll() on this platform
+        return False
 
-    A user error or an OS error (read-only folder, disk full, a folder where a file should
-    be) exits with code 2; running out of memory, or losing another rank of a torchrun run, with 1
-    (as a worker killed for it); an interrupt with 130 (SIGINT), 143 (SIGTERM) or 129 (SIGHUP: a
-    closed terminal or a dropped ssh session), after the library's cleanup has run. Under torchrun
-    every rank stops with the same code, but only rank 0 says it was interrupted (torchrun signals
-    them all at once), and another rank's error line names its rank (it may be its own: a shard
-    only it reads). A path that starts with ``~`` is taken from the home folder
+
+def command(name: str, group: typer.Typer | None = None) -> Callable[[Callable], Callable]:
+    """Register a subcommand (of ``group``, default the root) whose failures end in one ``error:``
+    line, never a traceback.
+
+    A user error or an OS error (read-only folder, disk full, a folder where a file should be) exits
+    with code 2; output piped to a reader that has gone (``sianms zoo | head``) ends quietly with
+    141, as SIGPIPE ends a Unix tool; running out of memory, or losing another rank of a torchrun
+    run, with 1 (as a worker killed for it); an interrupt with 130 (SIGINT), 143 (SIGTERM) or 129
+    (SIGHUP: a closed terminal or a dropped ssh session), after the library's cleanup has run. Under
+    torchrun every rank stops with the same code, but only rank 0 says it was interrupted (torchrun
+    signals them all at once), and another rank's error line names its rank (it may be its own: a
+    shard only it reads). A path that starts with ``~`` is taken from the home folder
     (:func:`home_expanded`).
     """
 
@@ -248,6 +261,14 @@ def command(name: str, group: typer.Typer | None = None) -> Callable[[Callable],
             except SianmsError as error:
                 say_error(f"{prefix}{error}")
                 raise typer.Exit(error.exit_code) from None
+            except BrokenPipeError as error:
+                if not standard_output_reader_gone():
+                    say_error(f"{prefix}{describe_os_error(error)}")
+                    raise typer.Exit(2) from None
+                # `sianms zoo | head`: the reader has what it wanted; end quietly, as a Unix tool
+                # killed by SIGPIPE does, and keep Python's exit-time flush from failing again.
+                os.dup2(os.open(os.devnull, os.O_WRONLY), 1)
+                raise typer.Exit(128 + signal.SIGPIPE) from None
             except OSError as error:
                 say_error(f"{prefix}{describe_os_error(error)}")
                 raise typer.Exit(2) from None
