@@ -25,7 +25,7 @@ import torch
 
 from sianms_cli.io import write_json
 from sianms_cli.evaluation.inference import FPointNetPredictor
-from sianms_cli.training.fpointnet import FPointNetConfig, validate, validation_rows
+from sianms_cli.training.fpointnet import FPointNetConfig, validation_figures, validation_rows
 from sianms_cli.training.run import checkpoint_file, load_checkpoint
 
 
@@ -37,19 +37,16 @@ RANGES = ((0.0, 15.0), (15.0, 30.0), (30.0, np.inf))
 
 
 def held_out_figures(fpointnet: str, cache: str, seed: int = 0) -> dict[str, dict[str, float]]:
-    """The validation figures of ``fpointnet`` on ``cache``, by class, with each class's heading
-    outcomes (the same draws: each pass is seeded alike)."""
+    """The validation figures of ``fpointnet`` on ``cache``, by class, with each class's heading outcomes."""
     path = checkpoint_file(fpointnet)
     checkpoint = load_checkpoint(path, "fpointnet")
     model = FPointNetPredictor(checkpoint, path).model
     fields = {key: value for key, value in checkpoint.config.items() if key in FPointNetConfig.__dataclass_fields__}
     config = replace(FPointNetConfig(**{**fields, "cache": cache}), val_cache=cache, init=None)
 
-    def draws() -> tuple[np.random.Generator, torch.Generator, torch.device]:
-        return np.random.default_rng(seed), torch.Generator().manual_seed(seed), torch.device("cpu")
-
-    grouped = by_class(validate(model, config, *draws()))
-    rows = validation_rows(model, config, *draws())
+    rows = validation_rows(model, config, np.random.default_rng(seed), torch.Generator().manual_seed(seed),
+                           torch.device("cpu"))
+    grouped = by_class(validation_figures(rows, config.classes))
     for k, name in enumerate(config.classes):
         grouped[f"{name}, frustums"].update(heading_outcomes(rows["heading"][rows["class"] == k]))
         for near, far in RANGES:

@@ -47,7 +47,7 @@ import math
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import torch
@@ -334,12 +334,16 @@ def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config
 def validate(model: FPointNetV1, config: FPointNetConfig, rng: np.random.Generator, generator: torch.Generator,
              device: torch.device) -> dict[str, float]:
     """Loss and box figures on the validation cache, overall and per class (module docstring)."""
-    joined = validation_rows(model, config, rng, generator, device)
-    if not joined:
+    return validation_figures(validation_rows(model, config, rng, generator, device), config.classes)
+
+
+def validation_figures(rows: dict[str, np.ndarray], classes: Sequence[str]) -> dict[str, float]:
+    """The figures of :func:`validation_rows`' rows, overall and per class ({} without rows)."""
+    if not rows:
         return {}
-    metrics = _figures("val", joined, np.ones(len(joined["class"]), dtype=bool))
-    for k, name in enumerate(config.classes):
-        metrics.update(_figures(f"val_{name}", joined, joined["class"] == k))
+    metrics = _figures("val", rows, np.ones(len(rows["class"]), dtype=bool))
+    for k, name in enumerate(classes):
+        metrics.update(_figures(f"val_{name}", rows, rows["class"] == k))
     return metrics
 
 
