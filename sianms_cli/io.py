@@ -31,6 +31,7 @@ import orjson
 from sianms_cli.errors import DataFormatError, OutputExistsError, SianmsError
 
 PARTIAL_SUFFIX = ".partial"
+CLAIM_SUFFIX = ".claim"  # beside a staging folder: see build_folder
 RECORD_MAX_BYTES = 64 * 2**20
 """The most a JSON record sianms writes for people and for its own use can need (eval.json, table.json,
 metrics, report.json, a metrics config: kilobytes to a few megabytes): a larger one is not the file meant."""
@@ -425,10 +426,55 @@ def staging_folder(destination: str | Path) -> Path:
     it, and the cause (a read-only parent, a full disk) is the same."""
     destination = Path(os.path.abspath(destination))
     make_folder(destination.parent)
-    staging = destination.with_name(f".{destination.name}.{os.getpid()}.{secrets.token_hex(4)}{PARTIAL_SUFFIX}")
+    return _make_staging(partial_name(destination), destination)
+
+
+def _make_staging(staging: Path, destination: Path) -> Path:
     with os_errors_as_output_errors(destination):
         staging.mkdir(mode=0o777)
     return staging
+
+
+def claim_of(staging: Path) -> Path:
+    """The lock file a run holds (``flock``) for as long as its staging folder ``staging`` is its own."""
+    return staging.with_name(staging.name + CLAIM_SUFFIX)
+
+
+def remove_abandoned_staging(destination: str | Path) -> list[Path]:
+    """Delete the staging folders of ``destination`` that runs killed outright (SIGKILL, the OOM killer, a
+    lost node) left beside it, and return them.
+
+    A staging folder is abandoned when its claim (:func:`claim_of`) is no longer held: the OS releases a
+    ``flock`` when its process dies, on this host or, on a network filesystem, on another. A folder whose
+    claim is held, or which has no claim (not made by :func:`build_folder`), is left alone; a claim no longer
+    held whose folder is gone (a run killed just before making it or just after publishing it) is deleted."""
+    destination = Path(os.path.abspath(destination))
+    prefix = f".{destination.name}."
+    removed = []
+    with os_errors_as_output_errors(destination.parent):
+        names = os.listdir(destination.parent) if destination.parent.is_dir() else []
+    for name in names:
+        if not (name.startswith(prefix) and name.endswith(CLAIM_SUFFIX)):
+            continue
+        staging = destination.parent / name.removesuffix(CLAIM_SUFFIX)
+        if partial_of(staging.name) != destination.name:
+            continue
+        try:
+            descriptor = os.open(claim_of(staging), os.O_RDWR)  # never created here: a vanished claim is a finished run
+        except FileNotFoundError:
+            continue
+        try:
+            try:
+                fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                continue  # held: its run is alive
+            if staging.is_dir() and not staging.is_symlink():
+                remove_folder(staging)
+                removed.append(staging)
+            claim_of(staging).unlink(missing_ok=True)
+        finally:
+            os.close(descriptor)
+    return removed
 
 
 def build_folder(destination: str | Path, build: Callable[[Path], T],
@@ -437,20 +483,47 @@ def build_folder(destination: str | Path, build: Callable[[Path], T],
     (:func:`staging_folder`), which then replaces it (:func:`publish`); on a failure or an interrupt
     the staging folder is removed and ``destination`` is left as it was.
 
+    The run holds a claim on its staging folder while it works (:func:`claim_of`), taken before the folder
+    is made and given up after it is gone, so the staging folder of a run killed outright is recognised as
+    abandoned and deleted by the next build of the same destination (:func:`remove_abandoned_staging`).
+
     ``seen`` is what the command saw at ``destination`` when it checked it at its start
     (:func:`snapshot`; None: nothing); publishing refuses a destination that has changed since.
     Returns the published folder and what ``build`` returned. The caller has checked that
     ``destination`` may be replaced (``build`` may check again before it returns)."""
     if seen == "now":
         seen = snapshot(destination)
-    staging = staging_folder(destination)
+    destination = Path(os.path.abspath(destination))
+    make_folder(destination.parent)
+    remove_abandoned_staging(destination)
+    staging, descriptor = _claim_staging(destination)
     try:
-        with errors_name_files_under(Path(os.path.abspath(destination)), staging):
-            built = build(staging)
-        return publish(staging, destination, seen), built
-    except BaseException:
-        remove_folder(staging)
-        raise
+        try:
+            _make_staging(staging, destination)
+            with errors_name_files_under(destination, staging):
+                built = build(staging)
+            return publish(staging, destination, seen), built
+        except BaseException:
+            remove_folder(staging)
+            raise
+    finally:
+        claim_of(staging).unlink(missing_ok=True)
+        os.close(descriptor)
+
+
+def _claim_staging(destination: Path) -> tuple[Path, int]:
+    """A new staging name for ``destination`` and the descriptor of its claim, held.
+
+    Another run's :func:`remove_abandoned_staging` may lock and delete a claim between its creation and
+    its locking here; a claim that lost its name that way is dropped and a new one made."""
+    while True:
+        staging = partial_name(destination)
+        with os_errors_as_output_errors(destination):
+            descriptor = os.open(claim_of(staging), os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o666)
+        fcntl.flock(descriptor, fcntl.LOCK_EX)
+        if os.fstat(descriptor).st_nlink:
+            return staging, descriptor
+        os.close(descriptor)
 
 
 @contextmanager

@@ -2,7 +2,10 @@
 
 import errno
 import os
+import signal
 import stat
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -215,6 +218,56 @@ def test_build_folder_publishes_a_complete_folder_or_leaves_the_old_one(tmp_path
     assert io.build_folder(destination, write) == (destination, 7)
     assert [p.name for p in destination.iterdir()] == ["new.txt"]
     assert [p.name for p in tmp_path.iterdir()] == ["report"]
+
+
+def test_a_staging_folder_a_killed_run_left_is_deleted_by_the_next_build(tmp_path):
+    destination = tmp_path / "data"
+    script = (f"import os, signal\nfrom sianms_cli import io\n"
+              f"def build(staging):\n    (staging / 'half.bin').write_bytes(bytes(4096))\n"
+              f"    os.kill(os.getpid(), signal.SIGKILL)\n"
+              f"io.build_folder({str(destination)!r}, build)\n")
+    killed = subprocess.run([sys.executable, "-c", script], check=False)
+    assert killed.returncode == -signal.SIGKILL
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert len(left) == 2 and left[0].endswith(".partial") and left[1] == left[0] + io.CLAIM_SUFFIX
+
+    assert io.build_folder(destination, lambda staging: (staging / "x").write_text("x"))[0] == destination
+    assert [p.name for p in tmp_path.iterdir()] == ["data"]
+
+
+def test_a_staging_folder_whose_claim_is_held_or_absent_is_left_alone(tmp_path):
+    destination = tmp_path / "data"
+    working, unclaimed, other = (io.partial_name(destination), io.partial_name(destination),
+                                 io.partial_name(tmp_path / "data2"))
+    for folder in (working, unclaimed, other):
+        folder.mkdir()
+    io.claim_of(other).touch()
+    held = io.try_lock(io.claim_of(working))  # another run at work, on this host or another
+    try:
+        assert io.remove_abandoned_staging(destination) == []
+        io.build_folder(destination, lambda staging: None)
+        assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+            ["data", working.name, io.claim_of(working).name, unclaimed.name, other.name, io.claim_of(other).name])
+    finally:
+        io.release_lock(held)
+    assert io.remove_abandoned_staging(destination) == [working]
+    assert not io.claim_of(working).exists() and unclaimed.is_dir() and other.is_dir()
+
+
+def test_a_claim_deleted_before_it_was_locked_is_replaced(tmp_path, monkeypatch):
+    destination, lock = tmp_path / "data", io.fcntl.flock
+    calls = []
+
+    def another_run_cleans_first(descriptor, operation):
+        calls.append(operation)
+        if len(calls) == 1:  # the race: another run found this claim unlocked, with no folder yet, and deleted it
+            io.remove_abandoned_staging(destination)
+        lock(descriptor, operation)
+
+    monkeypatch.setattr(io.fcntl, "flock", another_run_cleans_first)
+    io.build_folder(destination, lambda staging: (staging / "x").write_text("x"))
+    assert [p.name for p in tmp_path.iterdir()] == ["data"] and (destination / "x").read_text() == "x"
+    assert calls[0] == calls[-1] == io.fcntl.LOCK_EX and len(calls) == 3  # the first claim lost, a second made
 
 
 def test_a_staging_folder_that_cannot_be_made_is_named_by_its_destination(read_only_folder):
