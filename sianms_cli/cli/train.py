@@ -194,6 +194,8 @@ def fpointnet_cli(
     decay_rate: float = typer.Option(0.5, help="With --schedule original: learning-rate factor per step."),
     box_weight: float = typer.Option(1.0, help="Weight of the box terms (λ)."),
     corner_weight: float = typer.Option(10.0, help="Weight of the corner loss inside λ."),
+    heading_class_weight: float = typer.Option(1.0, help="Weight of the heading-bin loss inside λ (the only term "
+                                                         "that tells front from back)."),
     init: Optional[str] = typer.Option(None, help="Start from these weights (fine-tuning): a `train fpointnet` run "
                                                   "folder, its checkpoint.pt, or zoo:NAME (`sianms zoo`)."),
     multiview: bool = typer.Option(False, "--multiview", help="Also train on the union frustum of every cache pair "
@@ -224,7 +226,8 @@ def fpointnet_cli(
         num_object_points=num_object_points, min_box_height=min_box_height, intensity=intensity, flip=flip,
         shift=shift, jitter=jitter, epochs=epochs, batch_size=batch_size, lr=lr, schedule=schedule,
         decay_step=decay_step,
-        decay_rate=decay_rate, box_weight=box_weight, corner_weight=corner_weight, init=init, multiview=multiview,
+        decay_rate=decay_rate, box_weight=box_weight, corner_weight=corner_weight,
+        heading_class_weight=heading_class_weight, init=init, multiview=multiview,
         dataroot=None if dataroot is None else str(dataroot), max_distance=max_distance, seed=seed, device=device,
         precision=precision, streams=streams)
 

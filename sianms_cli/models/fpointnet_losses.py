@@ -73,7 +73,8 @@ def decode_boxes(outputs: dict[str, torch.Tensor], mean_sizes: torch.Tensor,
 
 
 def fpointnet_loss(outputs: dict[str, torch.Tensor], targets: dict[str, torch.Tensor], mean_sizes: torch.Tensor,
-                   box_weight: float = 1.0, corner_weight: float = 10.0) -> dict[str, torch.Tensor]:
+                   box_weight: float = 1.0, corner_weight: float = 10.0,
+                   heading_class_weight: float = 1.0) -> dict[str, torch.Tensor]:
     """Every term of the loss and ``total`` (scalars).
 
     Args:
@@ -81,7 +82,8 @@ def fpointnet_loss(outputs: dict[str, torch.Tensor], targets: dict[str, torch.Te
         targets: ``seg`` (B, N) long 0/1, ``center`` (B, 3), ``heading`` (B,),
             ``lwh`` (B, 3) (l, w, h), ``size_class`` (B,) long.
         mean_sizes: (NS, 3) (l, w, h) of the size clusters.
-        box_weight: λ; corner_weight: the corner term's weight inside λ.
+        box_weight: λ; corner_weight: the corner term's weight inside λ; heading_class_weight: the
+            heading-bin term's (the original's 1; the only term that tells a box's front from its back).
     """
     num_bins = outputs["heading_scores"].shape[1]
     rows = torch.arange(len(targets["center"]), device=targets["center"].device)
@@ -110,8 +112,8 @@ def fpointnet_loss(outputs: dict[str, torch.Tensor], targets: dict[str, torch.Te
                              torch.linalg.vector_norm(predicted - flipped, dim=2))
     corner = huber(distance, 1.0)
 
-    box = (center + stage1 + heading_class + size_cls + RESIDUAL_WEIGHT * (heading_res + size_res)
-           + corner_weight * corner)
+    box = (center + stage1 + heading_class_weight * heading_class + size_cls
+           + RESIDUAL_WEIGHT * (heading_res + size_res) + corner_weight * corner)
     return {"total": mask + box_weight * box, "mask": mask, "center": center, "stage1_center": stage1,
             "heading_class": heading_class, "heading_residual": heading_res, "size_class": size_cls,
             "size_residual": size_res, "corner": corner}

@@ -99,7 +99,7 @@ LOSS_TERMS = ("total", "mask", "center", "stage1_center", "heading_class", "head
               "size_residual", "corner")
 
 
-LOSS_WEIGHTS = ("box_weight", "corner_weight")  # config fields that weight the loss terms
+LOSS_WEIGHTS = ("box_weight", "corner_weight", "heading_class_weight")  # config fields that weight the loss terms
 SCHEDULES = ("cosine", "original")
 WARMUP_SHARE = 0.03  # of the run's samples (at most one epoch): Adam's early steps at the full rate shook BN
 FINAL_LR_SHARE = 0.01  # the cosine schedule's last learning rate, as a share of the first
@@ -128,6 +128,7 @@ class FPointNetConfig:
     bn_momentum_min: float = 0.01  # TF BN decay capped at 0.99
     box_weight: float = 1.0
     corner_weight: float = 10.0
+    heading_class_weight: float = 1.0
     num_object_points: int = 512
     init: str | None = None  # weights to start from: a fpointnet run folder, checkpoint or zoo:NAME (fine-tuning)
     multiview: bool = False  # also train on the union frustums of the cache's camera pairs
@@ -238,6 +239,11 @@ def size_clusters(config: FPointNetConfig) -> tuple[np.ndarray, np.ndarray]:
     return counts, means
 
 
+def loss_weights(config: FPointNetConfig) -> tuple[float, ...]:
+    """The loss terms' weights, in :func:`sianms_cli.models.fpointnet_losses.fpointnet_loss`'s order."""
+    return tuple(getattr(config, name) for name in LOSS_WEIGHTS)
+
+
 def to_tensors(batch: dict[str, np.ndarray], num_classes: int, device: torch.device) -> dict[str, torch.Tensor]:
     """The model's inputs and the loss's targets of a numpy batch."""
     tensor = {key: torch.as_tensor(batch[key]).to(device) for key in ("points", "seg", "class_index")}
@@ -314,7 +320,7 @@ def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config
         outputs = float32_outputs(outputs)
         optimizer.zero_grad(set_to_none=True)
         if len(share):
-            losses = fpointnet_loss(outputs, tensors, network.mean_sizes, config.box_weight, config.corner_weight)
+            losses = fpointnet_loss(outputs, tensors, network.mean_sizes, *loss_weights(config))
             loss = losses["total"] * share.loss_weight(world)
             for term in LOSS_TERMS:
                 sums[term] += losses[term].item() * len(share)
@@ -360,7 +366,7 @@ def validation_rows(model: FPointNetV1, config: FPointNetConfig, rng: np.random.
     for batch in iterate_batches(config.val_cache, config.selection, config.batch_size, rng, False):
         tensors = to_tensors(batch, len(config.classes), device)
         prediction = predict(model, tensors, generator)
-        losses = fpointnet_loss(prediction, tensors, model.mean_sizes, config.box_weight, config.corner_weight)
+        losses = fpointnet_loss(prediction, tensors, model.mean_sizes, *loss_weights(config))
         center = prediction["box_center"].double().cpu().numpy()
         heading = prediction["box_heading"].double().cpu().numpy()
         rows["class"].append(batch["class_index"])
@@ -448,6 +454,7 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
         union_settings = multiview_settings(config.cache, config.dataroot, config.max_distance)
     folder = RunFolder.open(out, kind="fpointnet", config=plain(asdict(config)), overwrite=overwrite,
                             resume=resume, may_differ=("epochs", "device", "precision"),
+                            added={"heading_class_weight": 1.0},
                             write=rank == 0, inputs=cache_inputs(config.cache, config.val_cache))
     with folder:
         unions, union_counts = None, {}

@@ -58,7 +58,7 @@ import warnings
 from contextlib import AbstractContextManager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -478,14 +478,16 @@ class RunFolder:
 
     @classmethod
     def open(cls, out: str | Path, *, kind: str, config: dict[str, Any], overwrite: bool = False,
-             resume: bool = False, may_differ: Iterable[str] = (), write: bool = True,
-             inputs: dict[str, str] | None = None) -> RunFolder:
+             resume: bool = False, may_differ: Iterable[str] = (), added: Mapping[str, Any] | None = None,
+             write: bool = True, inputs: dict[str, str] | None = None) -> RunFolder:
         """Check ``out`` and return its folder; read its checkpoint when resuming.
 
         - A folder holding a run (:func:`holds_run`) is refused unless ``resume`` (continue it:
           its config must equal ``config`` except the fields in ``may_differ`` and the paths of
           :data:`RECORDED_PATHS`, whose content ``inputs`` checks) or ``overwrite``
           (its run files are deleted once the folder's lock is held; nothing else is touched).
+        - ``added``: settings introduced after runs were made, each with the value a run that does not
+          record it had, so such a run resumes when given that value.
         - ``resume`` with no checkpoint yet starts afresh, when config.json gives the same config.
         - A non-empty folder that holds no run is refused, ``overwrite`` or not: it is someone else's.
         - ``write`` false (the non-zero ranks of a distributed run): check and read only.
@@ -512,6 +514,7 @@ class RunFolder:
                 stored = {"kind": kind, **resumed.config}
             else:  # a run stopped in its first epoch: its config.json says what it was
                 stored = _stored_config(path / CONFIG)
+            stored = {**(added or {}), **stored}
             # Where the caches lie may differ ("c" and "./c", or moved): their content is checked below.
             differ = sorted(key for key in set(wanted) | set(stored)
                             if key not in {*may_differ, *RECORDED_PATHS} and wanted.get(key) != stored.get(key))

@@ -40,6 +40,7 @@ def test_every_command_takes_the_same_seeds(command, seed):
     (dict(min_box_height=-1.0), "--min-box-height must be >= 0, got -1.0"),
     (dict(box_weight=-1.0), "--box-weight must be a finite number >= 0, got -1.0"),
     (dict(corner_weight=math.nan), "--corner-weight must be a finite number >= 0, got nan"),
+    (dict(heading_class_weight=-0.5), "--heading-class-weight must be a finite number >= 0, got -0.5"),
 ])
 def test_fpointnet_names_the_flag_it_refuses(flags, message):
     with pytest.raises(SianmsError, match=f"^{message}$"):

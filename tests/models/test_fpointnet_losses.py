@@ -111,6 +111,16 @@ def test_a_heading_flipped_prediction_has_zero_corner_loss(targets):
     assert losses["heading_residual"].item() == pytest.approx(NH - 0.5)  # Huber(12, 1)
 
 
+def test_the_heading_class_weight_scales_only_the_heading_bin_term_inside_lambda(targets):
+    outputs = perfect_outputs(targets)
+    outputs["heading_scores"] = torch.zeros_like(outputs["heading_scores"])  # a uniform guess: ln 12 each
+    plain = fpointnet_loss(outputs, targets, MEAN, box_weight=2.0)
+    weighted = fpointnet_loss(outputs, targets, MEAN, box_weight=2.0, heading_class_weight=5.0)
+    assert plain["heading_class"].item() == pytest.approx(math.log(NH))
+    assert (weighted["total"] - plain["total"]).item() == pytest.approx(2.0 * 4.0 * math.log(NH))
+    assert all(torch.equal(weighted[term], plain[term]) for term in plain if term != "total")
+
+
 def test_hand_computed_shift_case():
     """One 4 x 2 x 1.5 box at heading 0, predicted 3 m off along x, stage 1 0.5 m off, logits 0.
 

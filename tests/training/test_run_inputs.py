@@ -92,6 +92,18 @@ def test_resuming_a_run_without_checkpoint_compares_its_config_json(tmp_path):
     assert json.loads((out / CONFIG).read_text()) == {"kind": "siamese", "cache": "./a", "epochs": 5, "lr": 0.1}
 
 
+def test_a_run_made_before_a_setting_existed_resumes_with_the_value_it_had(tmp_path):
+    out = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt):
+        with RunFolder.open(out, kind="fpointnet", config={"cache": "a", "lr": 0.1}):
+            raise KeyboardInterrupt
+    RunFolder.open(out, kind="fpointnet", config={"cache": "a", "lr": 0.1, "weight": 1.0}, resume=True,
+                   added={"weight": 1.0})
+    with pytest.raises(SianmsError, match="the config differs in weight"):
+        RunFolder.open(out, kind="fpointnet", config={"cache": "a", "lr": 0.1, "weight": 3.0}, resume=True,
+                       added={"weight": 1.0})
+
+
 # --------------------------------------------------------------------------- the commands
 
 
