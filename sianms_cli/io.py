@@ -449,15 +449,12 @@ def remove_abandoned_staging(destination: str | Path) -> list[Path]:
     claim is held, or which has no claim (not made by :func:`build_folder`), is left alone; a claim no longer
     held whose folder is gone (a run killed just before making it or just after publishing it) is deleted."""
     destination = Path(os.path.abspath(destination))
-    prefix = f".{destination.name}."
     removed = []
     with os_errors_as_output_errors(destination.parent):
         names = os.listdir(destination.parent) if destination.parent.is_dir() else []
     for name in names:
-        if not (name.startswith(prefix) and name.endswith(CLAIM_SUFFIX)):
-            continue
         staging = destination.parent / name.removesuffix(CLAIM_SUFFIX)
-        if partial_of(staging.name) != destination.name:
+        if not name.endswith(CLAIM_SUFFIX) or partial_of(staging.name) != destination.name:
             continue
         try:
             descriptor = os.open(claim_of(staging), os.O_RDWR)  # never created here: a vanished claim is a finished run

@@ -239,9 +239,9 @@ def size_clusters(config: FPointNetConfig) -> tuple[np.ndarray, np.ndarray]:
     return counts, means
 
 
-def loss_weights(config: FPointNetConfig) -> tuple[float, ...]:
-    """The loss terms' weights, in :func:`sianms_cli.models.fpointnet_losses.fpointnet_loss`'s order."""
-    return tuple(getattr(config, name) for name in LOSS_WEIGHTS)
+def loss_weights(config: FPointNetConfig) -> dict[str, float]:
+    """The loss terms' weights, as :func:`sianms_cli.models.fpointnet_losses.fpointnet_loss` takes them."""
+    return {name: getattr(config, name) for name in LOSS_WEIGHTS}
 
 
 def to_tensors(batch: dict[str, np.ndarray], num_classes: int, device: torch.device) -> dict[str, torch.Tensor]:
@@ -320,7 +320,7 @@ def train_epoch(model: torch.nn.Module, optimizer: torch.optim.Optimizer, config
         outputs = float32_outputs(outputs)
         optimizer.zero_grad(set_to_none=True)
         if len(share):
-            losses = fpointnet_loss(outputs, tensors, network.mean_sizes, *loss_weights(config))
+            losses = fpointnet_loss(outputs, tensors, network.mean_sizes, **loss_weights(config))
             loss = losses["total"] * share.loss_weight(world)
             for term in LOSS_TERMS:
                 sums[term] += losses[term].item() * len(share)
@@ -366,7 +366,7 @@ def validation_rows(model: FPointNetV1, config: FPointNetConfig, rng: np.random.
     for batch in iterate_batches(config.val_cache, config.selection, config.batch_size, rng, False):
         tensors = to_tensors(batch, len(config.classes), device)
         prediction = predict(model, tensors, generator)
-        losses = fpointnet_loss(prediction, tensors, model.mean_sizes, *loss_weights(config))
+        losses = fpointnet_loss(prediction, tensors, model.mean_sizes, **loss_weights(config))
         center = prediction["box_center"].double().cpu().numpy()
         heading = prediction["box_heading"].double().cpu().numpy()
         rows["class"].append(batch["class_index"])
@@ -454,7 +454,7 @@ def run(config: FPointNetConfig, out: str | Path, *, overwrite: bool = False, re
         union_settings = multiview_settings(config.cache, config.dataroot, config.max_distance)
     folder = RunFolder.open(out, kind="fpointnet", config=plain(asdict(config)), overwrite=overwrite,
                             resume=resume, may_differ=("epochs", "device", "precision"),
-                            added={"heading_class_weight": 1.0},
+                            added={"heading_class_weight": FPointNetConfig.heading_class_weight},
                             write=rank == 0, inputs=cache_inputs(config.cache, config.val_cache))
     with folder:
         unions, union_counts = None, {}
