@@ -2,7 +2,6 @@
 under torchrun, split over the ranks as ``train fpointnet`` splits it; rank 0 saves the
 losses and weights to ``sys.argv[1]`` (run by test_distributed.py)."""
 
-import os
 import sys
 
 import torch
@@ -12,15 +11,14 @@ from sianms_cli.data.streams import stream_batch_size
 from sianms_cli.models.fpointnet import FPointNetV1
 from sianms_cli.models.fpointnet_losses import fpointnet_loss
 from sianms_cli.models.global_batch import BatchShare
+from sianms_cli.training.run import init_distributed
 
 BATCH, POINTS = 7, 64
 
 
 def main(out: str) -> None:
-    world = int(os.environ.get("WORLD_SIZE", "1"))
-    if world > 1:
-        dist.init_process_group("gloo")
-    rank = dist.get_rank() if world > 1 else 0
+    # The commands' own join, whose exit handler frees the DDP wrapper before destroying the group.
+    rank, world, _ = init_distributed(torch.device("cpu"))
     torch.manual_seed(0)
     network = FPointNetV1(torch.tensor([[4.0, 1.8, 1.6], [0.8, 0.7, 1.7], [1.7, 0.6, 1.2]]),
                           num_object_points=32).double()
@@ -55,7 +53,6 @@ def main(out: str) -> None:
         torch.save({"losses": losses, "state": network.state_dict()}, out)
     if world > 1:
         dist.barrier()
-        dist.destroy_process_group()
 
 
 if __name__ == "__main__":
