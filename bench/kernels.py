@@ -2,7 +2,7 @@
 demo, timed in fresh processes with the machine's native kernels and with the AVX2 ones.
 
 Frustum PointNets training (75 % of the demo: frustums per second at 1,024 points, batch 32,
-2 torch threads, :func:`train_fpointnet.frustums_per_second`) and ``sianms synth`` of one
+512 object points, 2 torch threads, float32: :func:`train_fpointnet.measure`) and ``sianms synth`` of one
 5-second mini scene at image scale 0.25 (15 %: samples per second). Prints both rates under
 both settings and AVX2 / native; on an AVX2-only machine the two settings run the same kernels
 and the ratios measure the noise.
@@ -29,10 +29,10 @@ def measure(steps: int) -> dict[str, float]:
     import torch
 
     from sianms_cli.synth.generate import SynthConfig, run
-    from train_fpointnet import frustums_per_second
+    from train_fpointnet import measure as training_rate
 
     torch.set_num_threads(2)
-    training = frustums_per_second(1024, 32, steps, train=True)
+    training = training_rate(1024, 512, 32, steps, "fp32", False, "cpu")
     config = SynthConfig(version="v1.0-mini", scenes=1, image_scale=0.25, scene_seconds=5.0, seed=1)
     with tempfile.TemporaryDirectory() as scratch:
         start = time.perf_counter()

@@ -1,5 +1,6 @@
 """A rank's share of a global batch draws what one process draws for those rows."""
 
+import pytest
 import torch
 
 from sianms_cli.models.global_batch import BatchShare, batch_norm, dropout, uniform
@@ -19,16 +20,19 @@ def test_a_shares_uniform_draws_are_its_rows_of_the_global_draw():
     assert torch.equal(part, whole[share.start:share.stop])
 
 
-def test_dropout_is_torchs_and_a_share_masks_its_rows_of_the_global_mask():
-    x = torch.rand(6, 10, 8) + 1
+def test_dropout_keeps_a_bernoulli_share_scaled_up_and_a_share_masks_its_rows_of_the_global_mask():
+    x = torch.rand(60, 10, 8) + 1
     torch.manual_seed(4)
-    expected = torch.nn.functional.dropout(x, 0.5, training=True)
+    dropped = dropout(x, 0.25, None, training=True)
+    kept = dropped != 0
+    assert kept.float().mean().item() == pytest.approx(0.75, abs=0.01)  # 4,800 draws: sd 0.006
+    torch.testing.assert_close(dropped[kept], x[kept] / 0.75)
     torch.manual_seed(4)
-    assert torch.equal(dropout(x, 0.5, None, training=True), expected)
-    share = BatchShare.of_counts([3, 3], 1)
+    assert torch.equal(dropout(x, 0.25, None, training=True), dropped)  # torch's global generator
+    share = BatchShare.of_counts([30, 30], 1)
     torch.manual_seed(4)
-    assert torch.equal(dropout(x[share.start:share.stop], 0.5, share, training=True), expected[3:])
-    assert dropout(x, 0.5, None, training=False) is x
+    assert torch.equal(dropout(x[share.start:share.stop], 0.25, share, training=True), dropped[30:])
+    assert dropout(x, 0.25, None, training=False) is x
 
 
 def test_batch_norm_without_a_process_group_is_the_module_itself():

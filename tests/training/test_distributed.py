@@ -113,9 +113,13 @@ def test_fpointnet_two_gloo_processes_train_as_one(two_shard_cache, two_shard_da
     for a, b in zip(two.history, one.history):
         assert (a["train_count"], a["train_union_count"]) == (b["train_count"], b["train_union_count"])
         assert a["val_count"] == b["val_count"] > 0
-    for term in ("total", "mask", "center", "corner", "heading_class", "size_residual"):
-        # epoch 1 is one batch: the loss of the same initial weights on the same frustums
-        assert two.history[0][f"train_{term}"] == pytest.approx(first[f"train_{term}"], rel=1e-5)
+    # Epoch 1 is one batch: the loss of the same initial weights on the same frustums. The per-point
+    # segmentation loss agrees to rounding; the terms after the masking agree unless a point whose
+    # logits tie to rounding flips its mask (measured: 1 of 13,248 points, margin 1e-5, moved the
+    # centre loss by 5e-4); the split batch's exact equality is the float64 test's above.
+    assert two.history[0]["train_mask"] == pytest.approx(first["train_mask"], rel=1e-5)
+    for term in ("total", "center", "corner", "heading_class", "size_residual"):
+        assert two.history[0][f"train_{term}"] == pytest.approx(first[f"train_{term}"], rel=1e-2)
     parameters = torch.cat([(two.model[key] - value).abs().flatten() for key, value in one.model.items()
                             if value.is_floating_point() and "running" not in key])
     assert parameters.max().item() <= 2 * 1e-3 * len(one.history) and parameters.median().item() < 1e-4
@@ -134,14 +138,16 @@ def test_streams_the_processes_cannot_share_are_one_error_line(tiny_caches, tmp_
 @pytest.mark.skipif(not has_native_bf16(), reason="bfloat16 is refused where the CPU would emulate it")
 def test_fpointnet_in_bf16_on_two_gloo_processes_takes_the_first_step_as_one(two_shard_cache, tmp_path):
     """Autocast under DDP: batch norm's all-reduced statistics are summed in float32, so the two
-    processes' first epoch (one batch of the same initial weights) gives one process's loss terms
-    within 1 %. Summed in bfloat16, as a CPU's autocast sums, the total loss came out 104.8
-    against 101.7 (3 %)."""
+    processes' first epoch (one batch of the same initial weights) gives one process's total and
+    per-point segmentation loss within 1 %. Summed in bfloat16, as a CPU's autocast sums, the total
+    loss came out 104.8 against 101.7 (3 %). The terms after the masking move with the points whose
+    bfloat16 logits tie and flip (the size residual by 1.8 % in this batch): within 5 %."""
     command = ["train", "fpointnet", "--cache", str(two_shard_cache), "--precision", "bf16", *FPOINTNET]
     two, one = train_twice(command, tmp_path, native_environment())
     assert two.extra["precision"] == one.extra["precision"] == "bf16"
-    for term in ("total", "mask", "center", "corner", "heading_class", "size_residual"):
-        assert two.history[0][f"train_{term}"] == pytest.approx(one.history[0][f"train_{term}"], rel=1e-2)
+    for term, within in [("total", 1e-2), ("mask", 1e-2), ("center", 5e-2), ("corner", 5e-2),
+                         ("heading_class", 5e-2), ("size_residual", 5e-2)]:
+        assert two.history[0][f"train_{term}"] == pytest.approx(one.history[0][f"train_{term}"], rel=within), term
 
 
 def _rank_process(parent: int, rank: int) -> int | None:
