@@ -92,8 +92,8 @@ class _MaxPool(torch.autograd.Function):
 def _max_over_points(x: torch.Tensor, block: int) -> tuple[torch.Tensor, torch.Tensor]:
     """(values, indices) of the maximum over dim 1 of (B, N, C): per block of ``block`` points, then
     within the block holding it; ``x.max(dim=1)`` where N is not a multiple of ``block``."""
-    batch, points, channels = x.shape
-    if points % block or points == block:
+    points = x.shape[1]
+    if points % block:
         values, indices = x.max(dim=1)
         return values, indices
     values, winner = x.unflatten(1, (points // block, block)).amax(dim=2).max(dim=1)
