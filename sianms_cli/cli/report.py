@@ -31,6 +31,9 @@ def report_cli(
     page: Optional[Path] = typer.Option(None, help="Several EVALs: write this results page (Markdown, e.g. "
                                                    "docs/results/NAME.md) and NAME.json beside it; its section "
                                                    "Analysis is kept when the page is made again."),
+    paired_with: Optional[List[Path]] = typer.Option(
+        None, help="Several EVALs: a run of a second arm on one EVAL's world (the same dataset and seed), given once "
+                   "per EVAL; each method is compared between the arms, world by world."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing report folder."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
     as_json: bool = typer.Option(False, "--json", help="Print report.json; nothing else goes to stdout."),
@@ -44,16 +47,22 @@ def report_cli(
     Given several evaluations (seeds of one study), Table I over them as mean ± standard deviation and
     the merging methods' paired differences from vanilla and Axis-NMS with a 95 % interval, into --out; with
     --page, the study's results page (those tables, duplicates left and camera pairs, headed by the command,
-    commit, machine and date) and its JSON.
+    commit, machine and date) and its JSON. With --paired-with, the runs of a second arm on the same worlds
+    (another detector, say): every method's difference between the arms, world by world, with its interval.
     """
     import json
 
+    paired = tuple(paired_with or ())
     if page is not None:
-        _results_page(evals, page, baseline, max_drop, force, out, overwrite, quiet, as_json)
+        _results_page(evals, paired, page, baseline, max_drop, force, out, overwrite, quiet, as_json)
         return
     if len(evals) > 1:
-        report = _runs_report(evals, baseline, max_drop, force, out, overwrite, quiet)
+        report = _runs_report(evals, paired, baseline, max_drop, force, out, overwrite, quiet)
     else:
+        if paired:
+            from sianms_cli.errors import SianmsError
+
+            raise SianmsError("--paired-with: arms are compared over several runs; give at least two EVAL")
         from sianms_cli.reporting.report import ReportConfig, run
 
         config = ReportConfig(eval=str(evals[0]), baseline=None if baseline is None else str(baseline),
@@ -83,8 +92,9 @@ def _refuse_gate_flags(baseline: Optional[Path], max_drop: Optional[str], force:
             raise SianmsError(f"{flag}: the gate compares one evaluation with its baseline; give one EVAL")
 
 
-def _results_page(evals: List[Path], page: Path, baseline: Optional[Path], max_drop: Optional[str], force: bool,
-                  out: Optional[Path], overwrite: bool, quiet: bool, as_json: bool) -> None:
+def _results_page(evals: List[Path], paired: tuple[Path, ...], page: Path, baseline: Optional[Path],
+                  max_drop: Optional[str], force: bool, out: Optional[Path], overwrite: bool, quiet: bool,
+                  as_json: bool) -> None:
     import json
 
     from sianms_cli.errors import SianmsError
@@ -94,11 +104,12 @@ def _results_page(evals: List[Path], page: Path, baseline: Optional[Path], max_d
     if len(evals) < 2:
         raise SianmsError("--page: a results page summarises several runs; give at least two EVAL")
     sources = [str(folder) for folder in evals]
-    config = PageConfig(evals=tuple(sources), page=str(page),
-                        command=command_line(sources, str(page), None if out is None else str(out)))
+    paired_sources = tuple(str(folder) for folder in paired)
+    config = PageConfig(evals=tuple(sources), page=str(page), paired_with=paired_sources,
+                        command=command_line(sources, str(page), None if out is None else str(out), paired_sources))
     if out is not None:
         check_page_outputs(page)  # before the report folder is written
-        report = _runs_report(evals, None, None, False, out, overwrite, quiet)
+        report = _runs_report(evals, paired, None, None, False, out, overwrite, quiet)
     with ProgressBar(quiet) as bar:
         written = run(config, progress=bar)
     if as_json:
@@ -109,14 +120,15 @@ def _results_page(evals: List[Path], page: Path, baseline: Optional[Path], max_d
         typer.echo(f"wrote {report.html}")
 
 
-def _runs_report(evals: List[Path], baseline: Optional[Path], max_drop: Optional[str], force: bool,
-                 out: Optional[Path], overwrite: bool, quiet: bool):
+def _runs_report(evals: List[Path], paired: tuple[Path, ...], baseline: Optional[Path], max_drop: Optional[str],
+                 force: bool, out: Optional[Path], overwrite: bool, quiet: bool):
     from sianms_cli.errors import SianmsError
     from sianms_cli.reporting.runs_report import RunsReportConfig, run
 
     _refuse_gate_flags(baseline, max_drop, force)
     if out is None:
         raise SianmsError("--out: a report over several runs has no EVAL folder of its own; name its folder")
-    config = RunsReportConfig(evals=tuple(str(folder) for folder in evals))
+    config = RunsReportConfig(evals=tuple(str(folder) for folder in evals),
+                              paired_with=tuple(str(folder) for folder in paired))
     with ProgressBar(quiet) as bar:
         return run(config, out, overwrite=overwrite, progress=bar)

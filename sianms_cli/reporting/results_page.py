@@ -41,7 +41,14 @@ from sianms_cli.progress import SILENT, Progress
 from sianms_cli.reporting.eval_table import REID_WRONG_COLUMNS, REID_WRONG_FIGURES, format_cell, pair_label
 from sianms_cli.reporting.report import strict_json
 from sianms_cli.reporting.report_html import Block, Heading, Paragraph, Table, render_markdown
-from sianms_cli.reporting.runs_report import RunsReportConfig, read_runs, result_blocks, spread, summarize
+from sianms_cli.reporting.runs_report import (
+    RunsReportConfig,
+    read_paired_runs,
+    read_runs,
+    result_blocks,
+    spread,
+    summarize,
+)
 
 SCHEMA = "sianms-results-page"
 SCHEMA_VERSION = 1
@@ -61,12 +68,14 @@ class PageConfig:
     evals: tuple[str, ...]
     page: str
     command: str
+    paired_with: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
-        RunsReportConfig(evals=self.evals)  # the same checks: at least two, none empty
+        RunsReportConfig(evals=self.evals, paired_with=self.paired_with)  # the same checks
         if not str(self.page).endswith(".md"):
             raise SianmsError(f"--page: a results page is Markdown: name a .md file, got '{self.page}'")
         object.__setattr__(self, "evals", tuple(str(source) for source in self.evals))
+        object.__setattr__(self, "paired_with", tuple(str(source) for source in self.paired_with))
         object.__setattr__(self, "page", str(self.page))
 
 
@@ -80,9 +89,11 @@ class Page:
     markdown: str
 
 
-def command_line(evals: Sequence[str], page: str, out: str | None = None) -> str:
+def command_line(evals: Sequence[str], page: str, out: str | None = None, paired_with: Sequence[str] = ()) -> str:
     """The `sianms report` command that makes the page, quoted for a POSIX shell."""
-    return shlex.join(["sianms", "report", *evals, "--page", page, *(["--out", out] if out is not None else [])])
+    pairing = [word for source in paired_with for word in ("--paired-with", source)]
+    return shlex.join(["sianms", "report", *evals, *pairing, "--page", page,
+                       *(["--out", out] if out is not None else [])])
 
 
 # --------------------------------------------------------------------------- the header
@@ -336,9 +347,11 @@ def page_markdown(content: Mapping[str, Any], analysis: str) -> str:
 
 
 def page_content(sources: Sequence[str], runs: Sequence[Mapping[str, Any]], title: str, json_name: str,
-                 header: Mapping[str, Any]) -> dict[str, Any]:
-    """The JSON beside the page: the runs report's content, the header and the page's extra tables."""
-    runs_report = summarize(sources, runs)
+                 header: Mapping[str, Any],
+                 paired: tuple[Sequence[str], Sequence[Mapping[str, Any]]] | None = None) -> dict[str, Any]:
+    """The JSON beside the page: the runs report's content (with the second arm's comparison where ``paired``),
+    the header and the page's extra tables."""
+    runs_report = summarize(sources, runs, paired)
     return strict_json({"schema": SCHEMA, "schema_version": SCHEMA_VERSION, "title": title, "json_name": json_name,
                         "header": dict(header),
                         "runs_report": runs_report, "table_class": runs_report["table_class"],
@@ -363,8 +376,9 @@ def run(config: PageConfig, *, progress: Progress = SILENT, header: Mapping[str,
     analysis = check_page_outputs(page)
     progress.start(2, "step", "page")
     runs = read_runs(config.evals)
+    paired = read_paired_runs(config.evals, runs, config.paired_with) if config.paired_with else None
     content = page_content(config.evals, runs, f"{page.stem}: {len(runs)} runs", json_path.name,
-                           header if header is not None else page_header(config.command))
+                           header if header is not None else page_header(config.command), paired)
     progress.advance()
     markdown = page_markdown(content, NEW_ANALYSIS if analysis is None else analysis)
     make_folder(page.parent)

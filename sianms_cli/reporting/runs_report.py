@@ -19,6 +19,12 @@ Written into ``--out`` (built in a hidden staging folder, moved into place when 
 - ``report.json`` (``"schema": "sianms-runs-report"``): the same figures, and each run's value
   of every cell and difference.
 
+With runs of a second arm (``--paired-with``: the same worlds evaluated with another detector or
+siamese network, as a study's second arm is), each method's figures are also compared between the
+arms, world by world: these runs minus the runs on the same dataset and seed, with the same
+interval and count. A method "(best)" takes each arm's own best threshold, chosen as that arm's
+runs chose it.
+
 The runs must have been evaluated alike (:data:`SHARED_FIELDS`: the same methods, NMS sweep,
 classes, distance and metrics config); their datasets and seeds differ, as a study's do. The
 same run given twice would fake a spread and is refused.
@@ -69,9 +75,11 @@ CONFIDENCE = 0.95
 
 @dataclass(frozen=True)
 class RunsReportConfig:
-    """The runs `sianms report` summarises: two or more evaluation folders or their ``report.json``."""
+    """The runs `sianms report` summarises: two or more evaluation folders or their ``report.json``; and the
+    runs of a second arm on the same worlds to compare them with (none, or one per run)."""
 
     evals: tuple[str, ...]
+    paired_with: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         evals = tuple(str(source) for source in self.evals)
@@ -79,7 +87,14 @@ class RunsReportConfig:
             raise SianmsError("EVAL: a spread over runs needs at least two; one EVAL gets its own report")
         if any(not source.strip() for source in evals):
             raise SianmsError("EVAL: must not be empty")
+        paired_with = tuple(str(source) for source in self.paired_with)
+        if paired_with and len(paired_with) != len(evals):
+            raise SianmsError(f"--paired-with: {len(paired_with)} runs for {len(evals)} EVAL; give one run of the "
+                              "other arm for each EVAL")
+        if any(not source.strip() for source in paired_with):
+            raise SianmsError("--paired-with: must not be empty")
         object.__setattr__(self, "evals", evals)
+        object.__setattr__(self, "paired_with", paired_with)
 
 
 # --------------------------------------------------------------------------- reading
@@ -110,6 +125,35 @@ def read_runs(sources: Sequence[str]) -> list[dict[str, Any]]:
                               "checkpoints); each run may count once")
         seen[identity] = source
     return runs
+
+
+def read_paired_runs(sources: Sequence[str], runs: Sequence[Mapping[str, Any]],
+                     paired_sources: Sequence[str]) -> tuple[list[str], list[dict[str, Any]]]:
+    """The second arm's runs (:func:`read_runs`), put in the order of ``runs``: each on the same dataset and seed.
+
+    Raises:
+        DataFormatError: a source is not a complete evaluation or a report.json.
+        SianmsError: the arms were evaluated otherwise, a run has no counterpart on its world, or a counterpart
+            is the same run (same cache and checkpoints: nothing differs between the arms).
+    """
+    others = read_runs(paired_sources)
+    differing = [name for name in SHARED_FIELDS if others[0]["config"].get(name) != runs[0]["config"].get(name)]
+    if differing:
+        raise SianmsError(f"--paired-with: {paired_sources[0]} was evaluated otherwise than {sources[0]} (differs "
+                          f"in: {', '.join(differing)}); arms are compared when evaluated alike")
+    world = {tuple(json.dumps(run["config"][name]) for name in RUN_IDENTITY): i for i, run in enumerate(others)}
+    order = []
+    for source, run in zip(sources, runs):
+        i = world.pop(tuple(json.dumps(run["config"][name]) for name in RUN_IDENTITY), None)
+        if i is None:
+            raise SianmsError(f"--paired-with: no run on the dataset and seed of {source} (dataset "
+                              f"{str(run['config']['dataset_sha256'])[:12]}, seed {run['config']['seed']}); each "
+                              "EVAL is compared with the other arm's run on the same world")
+        if others[i]["fingerprints"] == run["fingerprints"]:
+            raise SianmsError(f"--paired-with: {paired_sources[i]} is the same run as {source} (same cache and "
+                              "checkpoints); the arms must differ")
+        order.append(i)
+    return [paired_sources[i] for i in order], [others[i] for i in order]
 
 
 def run_thresholds(source: str) -> dict[str, Any] | None:
@@ -210,12 +254,17 @@ def table_cells(runs: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, dict[s
             for region, _ in REGIONS_SHOWN}
 
 
-def paired_differences(runs: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
-    """Each merging method minus each reference, run by run, per region and column.
+def difference(pairs: Sequence[tuple[float | None, float | None]], column: str) -> dict[str, Any]:
+    """The spread of ``a - b`` over the runs' ``(a, b)`` figures of ``column``, and ``better``: the runs where
+    ``a`` did better (higher AP, lower errors), ties counting neither way. A run without both figures is
+    left out (None)."""
+    differences = [None if a is None or b is None else a - b for a, b in pairs]
+    sign = 1.0 if column in HIGHER_IS_BETTER else -1.0
+    return {**spread(differences), "better": sum(1 for d in differences if d is not None and sign * d > 0)}
 
-    A run counts where both methods have a figure; ``better`` counts the runs where the method
-    did better (higher AP, lower errors), ties counting neither way.
-    """
+
+def paired_differences(runs: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Each merging method minus each reference, run by run, per region and column (:func:`difference`)."""
     rows = method_rows(runs)
     out = []
     for method in (m for m in MERGING_METHODS if m in rows):
@@ -223,13 +272,24 @@ def paired_differences(runs: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]
             for region, _ in REGIONS_SHOWN:
                 entry: dict[str, Any] = {"method": method, "reference": reference, "region": region}
                 for column in COLUMNS:
-                    pairs = [(figure(run, region, method, column), figure(run, region, reference, column))
-                             for run in runs]
-                    differences = [None if a is None or b is None else a - b for a, b in pairs]
-                    sign = 1.0 if column in HIGHER_IS_BETTER else -1.0
-                    entry[column] = {**spread(differences),
-                                     "better": sum(1 for d in differences if d is not None and sign * d > 0)}
+                    entry[column] = difference([(figure(run, region, method, column),
+                                                 figure(run, region, reference, column)) for run in runs], column)
                 out.append(entry)
+    return out
+
+
+def arm_differences(runs: Sequence[Mapping[str, Any]], others: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Each method's figures in ``runs`` minus those of ``others`` (the other arm, run i on run i's world), per
+    region and column (:func:`difference`), for the methods both arms have."""
+    other_rows = method_rows(others)
+    out = []
+    for method in (m for m in method_rows(runs) if m in other_rows):
+        for region, _ in REGIONS_SHOWN:
+            entry: dict[str, Any] = {"method": method, "region": region}
+            for column in COLUMNS:
+                entry[column] = difference([(figure(run, region, method, column), figure(other, region, method, column))
+                                            for run, other in zip(runs, others)], column)
+            out.append(entry)
     return out
 
 
@@ -327,6 +387,7 @@ def result_blocks(content: Mapping[str, Any], json_name: str = "report.json") ->
                              "*better in* counts the runs where the method's AP was higher. Each run's differences, "
                              f"and the intervals of the error columns, are in {json_name}."),
                    Table("paired-differences", header, rows, labels=2)]
+    blocks += arm_blocks(content, json_name)
     reid = content["reidentification"]
     if reid:
         blocks += [Heading("Re-identification over the runs"),
@@ -334,6 +395,33 @@ def result_blocks(content: Mapping[str, Any], json_name: str = "report.json") ->
                          [[matcher, *(_ratio_spread(figures[f]) for f in REID_FIGURES),
                            ", ".join(str(p) for p in figures["pairs_true"])] for matcher, figures in reid.items()])]
     return blocks
+
+
+def arm_blocks(content: Mapping[str, Any], json_name: str) -> list[Block]:
+    """The comparison with a second arm's runs (``--paired-with``): which run each is paired with and what tells
+    them apart, then each method's difference between the arms."""
+    paired = content.get("paired")
+    if paired is None:
+        return []
+    pairs = Table("paired-runs", ["run", "source", "paired with", "differs in"],
+                  [[str(i), run["source"], other["source"], ", ".join(other["differs_in"])]
+                   for i, (run, other) in enumerate(zip(content["runs"], paired["runs"]))], labels=3)
+    rows = []
+    for entry in paired["differences"]:
+        ap = entry["AP"]
+        rows.append([entry["method"], dict(REGIONS_SHOWN)[entry["region"]],
+                     *(_plus_minus(entry[c], c, signed=True) for c in COLUMNS), _interval(ap, "AP"),
+                     f"{ap['better']} of {ap['n']}"])
+    header = ["method", "region", *(f"{c} difference" for c in COLUMNS), "AP 95 % interval", "AP better in"]
+    return [Heading("Against the paired runs"),
+            Paragraph("Each run beside the run of the other arm on the same dataset and seed (`--paired-with`), and "
+                      "the fingerprints that differ between them."),
+            pairs,
+            Paragraph("Each method in these runs minus the same method in the paired run, then mean ± sample standard "
+                      "deviation over the worlds, the 95 % Student-t interval of the mean difference and the worlds "
+                      "where these runs' AP was higher. A family `(best)` is at each arm's own best threshold. Each "
+                      f"world's differences are in {json_name}."),
+            Table("arm-differences", header, rows, labels=2)]
 
 
 def _ratio_spread(stats: Mapping[str, Any]) -> str:
@@ -345,8 +433,10 @@ def _ratio_spread(stats: Mapping[str, Any]) -> str:
 # --------------------------------------------------------------------------- the command
 
 
-def summarize(sources: Sequence[str], runs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
-    """report.json's content for ``runs`` read from ``sources``."""
+def summarize(sources: Sequence[str], runs: Sequence[Mapping[str, Any]],
+              paired: tuple[Sequence[str], Sequence[Mapping[str, Any]]] | None = None) -> dict[str, Any]:
+    """report.json's content for ``runs`` read from ``sources``; ``paired``: the other arm's sources and runs,
+    in the order of ``runs`` (:func:`read_paired_runs`)."""
     first = runs[0]
     return strict_json({
         "schema": RUNS_SCHEMA, "schema_version": SCHEMA_VERSION, "table_class": first["table_class"],
@@ -359,6 +449,12 @@ def summarize(sources: Sequence[str], runs: Sequence[Mapping[str, Any]]) -> dict
         "cells": table_cells(runs),
         "paired_differences": paired_differences(runs),
         "reidentification": reidentification(runs),
+        "paired": None if paired is None else {
+            "runs": [{"source": source, "eval": other["eval"], "fingerprints": other["fingerprints"],
+                      "differs_in": sorted(name for name in run["fingerprints"]
+                                           if run["fingerprints"][name] != other["fingerprints"].get(name))}
+                     for source, other, run in zip(*paired, runs)],
+            "differences": arm_differences(runs, paired[1])},
     })
 
 
@@ -376,7 +472,8 @@ def run(config: RunsReportConfig, out: str | Path, *, overwrite: bool = False,
     seen = snapshot(out)  # publishing refuses an out that changed meanwhile
     progress.start(2, "step", "report")
     runs = read_runs(config.evals)
-    content = summarize(config.evals, runs)
+    paired = read_paired_runs(config.evals, runs, config.paired_with) if config.paired_with else None
+    content = summarize(config.evals, runs, paired)
     progress.advance()
     title = f"sianms report: {len(runs)} runs"
     published, markdown = build_folder(

@@ -192,3 +192,25 @@ def test_commit_and_cpu_model_where_there_is_no_checkout_or_proc(tmp_path):
     assert source_commit(tmp_path) is None
     assert cpu_model("processor\t: 0\nvendor_id\t: X\nmodel name\t: Fast CPU 9\n") == "Fast CPU 9"
     assert cpu_model("") != ""
+
+
+def test_a_page_of_a_second_arm_holds_the_comparison_and_its_command(runs, tmp_path):
+    arm = [make_eval(tmp_path / f"arm{k}", methods=METHODS, seed=k, dataset_sha256=f"{k}" * 64,
+                     siamese_sha256="t" * 64) for k in range(2)]
+    page = tmp_path / "arm.md"
+    pairing = [word for folder in runs for word in ("--paired-with", str(folder))]
+    result = CliRunner().invoke(app, ["report", *map(str, arm), *pairing, "--page", str(page), "--out",
+                                      str(tmp_path / "report"), "--quiet"])
+    assert result.exit_code == 0, result.output
+    content = json.loads((tmp_path / "arm.json").read_text())
+    assert content["header"]["command"] == (f"sianms report {arm[0]} {arm[1]} --paired-with {runs[0]} --paired-with "
+                                            f"{runs[1]} --page {page} --out {tmp_path / 'report'}")
+    markdown = page.read_text()
+    assert "## Against the paired runs" in markdown
+    arm_row, = (row for row in rows_of(markdown, "sianms") if row[1] == "All")
+    assert arm_row[2] == "-0.5 ± 2.1" and arm_row[-1] == "1 of 2"  # the first arm's +2 and -1 taken away
+    differences = next(e for e in content["runs_report"]["paired"]["differences"]
+                       if (e["method"], e["region"]) == ("sianms", "all"))
+    assert differences["AP"]["values"] == pytest.approx([-s for s in SIANMS_SHIFT])
+    assert [r["differs_in"] for r in content["runs_report"]["paired"]["runs"]] == [["siamese_sha256"]] * 2
+    assert json.loads((tmp_path / "report" / "report.json").read_text())["paired"] == content["runs_report"]["paired"]

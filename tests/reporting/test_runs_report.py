@@ -177,3 +177,79 @@ def test_a_run_whose_table_lists_other_methods_than_its_config_is_refused(runs, 
     edit_table(runs[2], drop_oracle)
     with pytest.raises(SianmsError, match=r"run2 was evaluated otherwise .*differs in: the methods of table.json"):
         run(RunsReportConfig(evals=tuple(map(str, runs))), tmp_path / "out")
+
+
+ARM_SHIFT = (2.0, 0.5, -1.0)  # added to the second arm's oracle AP on world k, overlap only
+
+
+def make_second_arm(tmp_path, k: int, **config):
+    """World k evaluated again with another detector: the oracle's overlap AP shifted by ARM_SHIFT[k]."""
+    folder = make_eval(tmp_path / f"arm{k}", methods=METHODS, seed=k, dataset_sha256=f"{k}" * 64,
+                       fpointnet_sha256="g" * 64, **config)
+
+    def change(table):
+        table["regions"]["overlap"]["oracle"]["car"]["AP"] += ARM_SHIFT[k]
+        table["best_nms"] = {"axis-nms": "axis-nms@0.1" if k == 2 else "axis-nms"}
+    edit_table(folder, change)
+    return folder
+
+
+def test_a_second_arm_is_compared_world_by_world(runs, tmp_path):
+    arm = [make_second_arm(tmp_path, k) for k in range(3)]
+    shuffled = (runs[2], runs[0], runs[1])  # paired by dataset and seed, not by order
+    report = run(RunsReportConfig(evals=tuple(map(str, arm)), paired_with=tuple(map(str, shuffled))),
+                 tmp_path / "out")
+    paired = report.content["paired"]
+    assert [r["source"] for r in paired["runs"]] == list(map(str, runs))
+    entry = next(e for e in paired["differences"] if (e["method"], e["region"]) == ("oracle", "overlap"))
+    assert entry["AP"]["values"] == pytest.approx(ARM_SHIFT)
+    half = T_975_2 * np.std(ARM_SHIFT, ddof=1) / math.sqrt(3)
+    assert entry["AP"]["ci95"] == pytest.approx([np.mean(ARM_SHIFT) - half, np.mean(ARM_SHIFT) + half])
+    assert entry["AP"]["better"] == 2
+    siamese = next(e for e in paired["differences"] if (e["method"], e["region"]) == ("sianms", "overlap"))
+    assert siamese["AP"]["values"] == pytest.approx([-1.0, 4.0, -4.0])  # the first arm's shifts, taken away
+    best = next(e for e in paired["differences"] if (e["method"], e["region"]) == ("axis-nms (best)", "all"))
+    # each arm at its own best: world 1 is 0.3 against 0.1, world 2 is 0.1 against 0.3
+    assert best["AP"]["values"] == pytest.approx([0.0, cell(1, 0, "car")["AP"] - cell(2, 0, "car")["AP"],
+                                                  cell(2, 0, "car")["AP"] - cell(1, 0, "car")["AP"]])
+    assert [other["differs_in"] for other in paired["runs"]] == [["fpointnet_sha256"]] * 3
+    tables = parse_html(report.html).tables
+    assert [row[2] for row in tables["paired-runs"][1:]] == [str(runs[0]), str(runs[1]), str(runs[2])]
+    row = next(r for r in tables["arm-differences"] if r[:2] == ["oracle", "Overlap"])
+    assert row[2] == "+0.5 ± 1.5" and row[-1] == "2 of 3"
+    assert "| oracle | Overlap | +0.5 ± 1.5 |" in report.markdown
+    assert run(RunsReportConfig(evals=tuple(map(str, runs))), tmp_path / "alone").content["paired"] is None
+
+
+def test_a_second_arm_that_is_not_one_run_per_world_evaluated_alike_is_refused(runs, tmp_path):
+    arm = [make_second_arm(tmp_path, k) for k in range(3)]
+
+    def report(evals, paired_with):
+        return run(RunsReportConfig(evals=tuple(map(str, evals)), paired_with=tuple(map(str, paired_with))),
+                   tmp_path / "out")
+    with pytest.raises(SianmsError, match="--paired-with: 2 runs for 3 EVAL"):
+        report(arm, runs[:2])
+    elsewhere = make_eval(tmp_path / "elsewhere", methods=METHODS, seed=7, dataset_sha256="7" * 64)
+    with pytest.raises(SianmsError, match=r"--paired-with: no run on the dataset and seed of .*arm2 \(dataset "
+                                          r"222222222222, seed 2\)"):
+        report(arm, (runs[0], runs[1], elsewhere))
+    with pytest.raises(SianmsError, match=r"--paired-with: .*run0 is the same run as .*run0 \(same cache"):
+        report(runs, runs)
+    swept = [make_eval(tmp_path / f"swept{k}", methods=METHODS, seed=k, dataset_sha256=f"{k}" * 64,
+                       nms_sweep="0.1", fpointnet_sha256="g" * 64) for k in range(3)]
+    with pytest.raises(SianmsError, match="evaluated otherwise .*differs in: nms_sweep"):
+        report(swept, runs)
+    assert not (tmp_path / "out").exists()
+
+
+def test_cli_paired_with(runs, tmp_path):
+    arm = [make_second_arm(tmp_path, k) for k in range(3)]
+    pairing = [word for folder in runs for word in ("--paired-with", str(folder))]
+    cli = CliRunner()
+    result = cli.invoke(app, ["report", *map(str, arm), *pairing, "--out", str(tmp_path / "out"), "--quiet",
+                              "--json"])
+    assert result.exit_code == 0, result.output
+    assert len(json.loads(result.stdout)["paired"]["differences"]) == 2 * 6  # six rows, two regions
+    result = cli.invoke(app, ["report", str(arm[0]), "--paired-with", str(runs[0]), "--quiet"])
+    assert (result.exit_code, result.output) == (
+        2, "error: --paired-with: arms are compared over several runs; give at least two EVAL\n")
