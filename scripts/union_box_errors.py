@@ -30,6 +30,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from functools import reduce
 from pathlib import Path
 
 import numpy as np
@@ -95,8 +96,8 @@ def scored_pairs(boxes: AllBoxes, truth_sample: np.ndarray, truth_xy: np.ndarray
     rows = np.stack([union, half_a, half_b])
     truth = nearest_truth(boxes.sample[rows.ravel()], boxes.translation[rows.ravel(), :2], truth_sample,
                           truth_xy).reshape(rows.shape)
-    keys = np.char.add(np.char.add(boxes.sample[union].astype(str), boxes.detection_a[union]),
-                       boxes.detection_b[union])
+    keys = np.char.add(np.char.add(np.char.add(boxes.sample[union].astype(str), " "), boxes.detection_a[union]),
+                       np.char.add(" ", boxes.detection_b[union]))
     return {"rows": rows, "truth": truth, "same": (truth[0] >= 0) & (truth == truth[0]).all(axis=0), "keys": keys}
 
 
@@ -148,12 +149,10 @@ def figures(dataroot: str, version: str, split: str, evals: list[str]) -> list[d
             raise SianmsError(f"{folder}: its true matches are not {read[0][0]}'s; evaluations are compared on one "
                               "world's matches")
     # The pairs every evaluation scored, so that the evaluations are compared on the same cars.
-    scored = set(keys.tolist())
-    for *_, pairs in read:
-        scored &= set(pairs["keys"][pairs["same"]].tolist())
+    scored = reduce(np.intersect1d, [pairs["keys"][pairs["same"]] for *_, pairs in read])
     out = []
     for folder, config, boxes, pairs in read:
-        kept = np.isin(pairs["keys"], list(scored))
+        kept = np.isin(pairs["keys"], scored)
         out.append({"eval": str(folder), "fpointnet_sha256": config["fpointnet_sha256"], "seed": config["seed"],
                     "matches": int(len(keys)), "scored": int(kept.sum()),
                     **pair_figures(boxes, pairs["rows"][:, kept], pairs["truth"][:, kept], truth_xy, truth_yaw)})

@@ -118,13 +118,17 @@ def read_runs(sources: Sequence[str]) -> list[dict[str, Any]]:
                               f"{', '.join(differing)}); a spread is taken over runs evaluated alike")
     seen: dict[tuple, str] = {}
     for source, run in zip(sources, runs):
-        identity = (*(json.dumps(run["config"][name]) for name in RUN_IDENTITY),
-                    json.dumps(run["fingerprints"], sort_keys=True))
+        identity = (*world_of(run), json.dumps(run["fingerprints"], sort_keys=True))
         if identity in seen:
             raise SianmsError(f"EVAL: {source} is the same run as {seen[identity]} (same dataset, seed, cache and "
                               "checkpoints); each run may count once")
         seen[identity] = source
     return runs
+
+
+def world_of(run: Mapping[str, Any]) -> tuple[str, ...]:
+    """The world a run evaluated: its dataset and seed (:data:`RUN_IDENTITY`), as comparable text."""
+    return tuple(json.dumps(run["config"][name]) for name in RUN_IDENTITY)
 
 
 def read_paired_runs(sources: Sequence[str], runs: Sequence[Mapping[str, Any]],
@@ -141,10 +145,10 @@ def read_paired_runs(sources: Sequence[str], runs: Sequence[Mapping[str, Any]],
     if differing:
         raise SianmsError(f"--paired-with: {paired_sources[0]} was evaluated otherwise than {sources[0]} (differs "
                           f"in: {', '.join(differing)}); arms are compared when evaluated alike")
-    world = {tuple(json.dumps(run["config"][name]) for name in RUN_IDENTITY): i for i, run in enumerate(others)}
+    world = {world_of(run): i for i, run in enumerate(others)}
     order = []
     for source, run in zip(sources, runs):
-        i = world.pop(tuple(json.dumps(run["config"][name]) for name in RUN_IDENTITY), None)
+        i = world.pop(world_of(run), None)
         if i is None:
             raise SianmsError(f"--paired-with: no run on the dataset and seed of {source} (dataset "
                               f"{str(run['config']['dataset_sha256'])[:12]}, seed {run['config']['seed']}); each "
