@@ -4,19 +4,22 @@ A path is ``kernels:precision[:flags]``: the kernels the arithmetic libraries ru
 what every command but the trainings asks for, so bytes agree across CPUs; ``native``: the
 CPU's own, what ``sianms train`` runs, :mod:`sianms_cli.kernels`), the precision of the forward
 pass (:mod:`sianms_cli.training.precision`), and flags: ``compiled`` (``torch.compile``,
-minutes of compiling first; needs a C++ compiler) and ``original`` (the network's operations
+minutes of compiling first; needs a C++ compiler), ``original`` (the network's operations
 as they were when the 4x goal of docs/performance.md was set: ReLU at every point before an
-``amax`` pool, torch's own dropout draws). Kernels are chosen when the libraries load, so every
-path is measured in a process of its own; all of them run in this one invocation, and each
-one's frustums per second is printed as a ratio against the reference path,
-``avx2:fp32:original`` (the trainings' default path then), at the same points and threads.
+``amax`` pool, torch's own dropout draws, the linear maps' biases added before batch norm,
+Adam's loop over the parameters) and ``per-point`` (every max-pooled layer through its
+per-point outputs, none through its input's covariance). Kernels are chosen when the
+libraries load, so every path is measured in a process of its own; all of them run in this
+one invocation, and each one's frustums per second is printed as a ratio against the
+reference path, ``avx2:fp32:original`` (the trainings' default path then), at the same points
+and threads; ``--rounds`` measures them in turn several times.
 
 A step is forward + loss + backward + Adam, batch 32, on random tensors of the real shapes,
 with half as many object points as frustum points (the demo's 128 of 256, the original's 512
 of 1,024; ``--object-points`` sets them): reading the cache costs well under 1 % of a step.
 On a GPU (``--device cuda``) the precisions are compared on the device instead.
 
-Usage: python bench/train_fpointnet.py [--points 256,1024] [--object-points N] [--threads 1,2] [--steps 6]
+Usage: python bench/train_fpointnet.py [--points 256,1024] [--object-points N] [--threads 1,2] [--steps 6] [--rounds 1]
                                        [--paths avx2:fp32,native:fp32,native:bf16,native:bf16:compiled]
                                        [--device cuda]
 """
@@ -26,20 +29,21 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import statistics
 import subprocess
 import sys
 import time
 
 REFERENCE = "avx2:fp32:original"
-DEFAULT_PATHS = "avx2:fp32,avx2:bf16,native:fp32,native:bf16"
-FLAGS = ("compiled", "original")
+DEFAULT_PATHS = "avx2:fp32,avx2:bf16,native:fp32,native:bf16:per-point,native:bf16"
+FLAGS = ("compiled", "original", "per-point")
 
 
 def use_original_operations() -> None:
     """The network's operations as they were when the 4x goal was set (module docstring)."""
     import torch
 
-    from sianms_cli.models import fpointnet
+    from sianms_cli.models import fpointnet, point_layers
 
     def original_dropout(x, p, share, training):
         if not training or p == 0:
@@ -50,11 +54,22 @@ def use_original_operations() -> None:
             noise = noise[share.start:share.stop]
         return x * noise.div_(1 - p)
 
-    fpointnet.pooled_relu = lambda x: torch.relu(x).amax(dim=1)
+    def original_pool(layer, x):
+        return torch.relu(point_layers.PointLinear.forward(layer, x)).amax(dim=1)
+
+    point_layers.PooledPointLinear.forward = original_pool
+    point_layers.PointLinear.leaves_out_bias = lambda layer: False
     fpointnet.dropout = original_dropout
 
 
-def measure(points: int, object_points: int, size: int, steps: int, precision: str, compiled: bool,
+def use_per_point_pools() -> None:
+    """Every max-pooled layer through its per-point outputs (module docstring)."""
+    from sianms_cli.models import point_layers
+
+    point_layers.COVARIANCE_MIN_WIDENING = 10**9
+
+
+def measure(points: int, object_points: int, size: int, steps: int, precision: str, flags: list[str],
             device_name: str) -> float:
     """Training frustums per second over ``steps`` steps after two warm-up steps (compiling, if asked)."""
     import torch
@@ -76,8 +91,8 @@ def measure(points: int, object_points: int, size: int, steps: int, precision: s
     x = torch.randn(size, points, 4, generator=generator).to(device)
     one_hot = torch.eye(3)[classes].to(device)
     model = FPointNetV1(mean_sizes, num_object_points=object_points).to(device)
-    forward = torch.compile(model) if compiled else model
-    optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
+    forward = torch.compile(model) if "compiled" in flags else model
+    optimizer = torch.optim.Adam(model.parameters(), lr=1e-3, fused="original" not in flags)  # fused: sianms train's
     mixed = MixedPrecision(precision, device)
 
     def step() -> None:
@@ -109,8 +124,9 @@ def child(args: argparse.Namespace) -> None:
     flags = args.flags.split(",")
     if "original" in flags:
         use_original_operations()
-    rate = measure(int(args.points), object_points(args), args.batch, args.steps, args.precision,
-                   "compiled" in flags, args.device)
+    if "per-point" in flags:
+        use_per_point_pools()
+    rate = measure(int(args.points), object_points(args), args.batch, args.steps, args.precision, flags, args.device)
     print(json.dumps({"frustums_per_second": rate, "capability": torch.backends.cpu.get_cpu_capability()}))
 
 
@@ -141,6 +157,8 @@ def main() -> None:
     parser.add_argument("--threads", default="1,2")
     parser.add_argument("--batch", type=int, default=32)
     parser.add_argument("--steps", type=int, default=6)
+    parser.add_argument("--rounds", type=int, default=1,
+                        help="measure every path this many times, in turn; print the medians and the ratios' range")
     parser.add_argument("--object-points", type=int, default=0, help="object points (default: half the points)")
     parser.add_argument("--paths", default=DEFAULT_PATHS, help=f"comma list of kernels:precision[:flags] "
                                                                f"(reference {REFERENCE} is always measured)")
@@ -164,11 +182,15 @@ def main() -> None:
     print("path                     | points | threads | frustums/s | / " + REFERENCE)
     for points in (int(value) for value in args.points.split(",")):
         for threads in (int(value) for value in args.threads.split(",")):
-            reference = None
+            rates: dict[str, list[float]] = {path: [] for path in paths}
+            for _ in range(args.rounds):  # in turn, so a slow spell of a shared machine slows every path
+                for path in paths:
+                    rates[path].append(run_path(path, points, threads, args))
             for path in paths:
-                rate = run_path(path, points, threads, args)
-                reference = reference or rate
-                print(f"{path:24s} | {points:6d} | {threads:7d} | {rate:10.1f} | {rate / reference:.2f}", flush=True)
+                ratios = [rate / reference for rate, reference in zip(rates[path], rates[REFERENCE])]
+                spread = f" ({min(ratios):.2f}-{max(ratios):.2f})" if args.rounds > 1 else ""
+                print(f"{path:24s} | {points:6d} | {threads:7d} | {statistics.median(rates[path]):10.1f} | "
+                      f"{statistics.median(ratios):.2f}{spread}", flush=True)
 
 
 if __name__ == "__main__":

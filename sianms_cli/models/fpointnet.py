@@ -15,9 +15,8 @@ Three stages on a batch of frustums, each frustum ``(N, C)`` points in its frust
    (docs/methods.md#heading-bins-and-size-clusters).
 
 Sizes are (l, w, h) as the original: the conversion from nuScenes' (w, l, h) happens once, in
-:mod:`sianms_cli.data.frustum_dataset`. Every per-point "1x1 conv" is an ``nn.Linear`` on the
-last axis (the same map as ``Conv1d(k=1)``, faster on CPUs), followed by batch norm (epsilon
-1e-3, TF's) and ReLU; before a max pool, the ReLU follows the pool (:func:`pooled_relu`).
+:mod:`sianms_cli.data.frustum_dataset`. The per-point layers and max pools are
+:mod:`sianms_cli.models.point_layers`.
 """
 
 from __future__ import annotations
@@ -28,85 +27,17 @@ import torch
 from torch import nn
 
 from sianms_cli.models.global_batch import BatchShare, batch_norm, dropout, uniform
+from sianms_cli.models.point_layers import PointLinear, PooledPointLinear
 
 NUM_HEADING_BINS = 12
 NUM_OBJECT_POINTS = 512
-BN_EPSILON = 1e-3  # TF batch_norm's default, which the original trained with
-POOL_BLOCK = 16  # points per block of a max pool: block maxima are a fast reduction, then one block is searched
-
-
-class PointLinear(nn.Module):
-    """Shared per-point linear -> batch norm -> ReLU on ``(B, N, C)`` (or FC on ``(B, C)``); the
-    batch norm is synchronised over the ranks of a distributed training (:mod:`~sianms_cli.models.global_batch`).
-    ``relu=False`` leaves the ReLU to :func:`pooled_relu` (the last layer before a max pool)."""
-
-    def __init__(self, inputs: int, outputs: int, relu: bool = True) -> None:
-        super().__init__()
-        self.linear = nn.Linear(inputs, outputs)
-        self.norm = nn.BatchNorm1d(outputs, eps=BN_EPSILON)
-        self.relu = relu
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        shape = x.shape
-        y = batch_norm(self.norm, self.linear(x.reshape(-1, shape[-1])))
-        return (torch.relu(y) if self.relu else y).reshape(*shape[:-1], y.shape[-1])
-
-
-def pooled_relu(x: torch.Tensor) -> torch.Tensor:
-    """(B, N, C) batch-norm outputs -> (B, C): ReLU, then the maximum over the points, with the
-    gradient routed to one point per channel (the original's max pool of ReLU outputs).
-
-    ReLU is monotone, so it is applied to the B x C maxima instead of the B x N x C outputs, in
-    both passes. TF's MaxPool, which the original trained with, passes the gradient to one
-    maximum; ``amax`` shares it among tied maxima and, to find them, compares every point with
-    the maximum in its backward pass, and ``max(dim=1)`` finds indices slowly across the point
-    axis and scatters slowly back: either cost about a third of a bfloat16 training step at 256
-    points (docs/performance.md). The ways differ only at ties above zero, which here are exact
-    duplicates among the gathered object points (whose weight gradients sum to the same) or
-    coincidences of rounding.
-    """
-    return torch.relu(_MaxPool.apply(x))
-
-
-class _MaxPool(torch.autograd.Function):
-    """:func:`pooled_relu`'s maximum: found block-wise, the gradient written to its flat positions."""
-
-    @staticmethod
-    def forward(ctx, x: torch.Tensor) -> torch.Tensor:
-        values, indices = _max_over_points(x, POOL_BLOCK)
-        ctx.save_for_backward(indices)
-        ctx.shape = x.shape
-        return values
-
-    @staticmethod
-    def backward(ctx, gradient: torch.Tensor) -> torch.Tensor:
-        (indices,) = ctx.saved_tensors
-        batch, points, channels = ctx.shape
-        rows = torch.arange(batch, device=indices.device)[:, None] * (points * channels)
-        flat = rows + indices * channels + torch.arange(channels, device=indices.device)
-        result = gradient.new_zeros(batch * points * channels)
-        result[flat.reshape(-1)] = gradient.reshape(-1)
-        return result.reshape(batch, points, channels)
-
-
-def _max_over_points(x: torch.Tensor, block: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """(values, indices) of the maximum over dim 1 of (B, N, C): per block of ``block`` points, then
-    within the block holding it; ``x.max(dim=1)`` where N is not a multiple of ``block``."""
-    points = x.shape[1]
-    if points % block:
-        values, indices = x.max(dim=1)
-        return values, indices
-    values, winner = x.unflatten(1, (points // block, block)).amax(dim=2).max(dim=1)
-    rows = winner[:, None, :] * block + torch.arange(block, device=x.device)[None, :, None]
-    within = x.gather(1, rows).max(dim=1).indices
-    return values, winner * block + within
 
 
 def _mlp(widths: list[int], pooled: bool = False) -> nn.Sequential:
-    """PointLinear layers through consecutive ``widths``; ``pooled``: the last one's ReLU is
-    :func:`pooled_relu`'s."""
+    """PointLinear layers through consecutive ``widths``; ``pooled``: the last one max-pools over
+    the points (:class:`~sianms_cli.models.point_layers.PooledPointLinear`)."""
     pairs = list(zip(widths[:-1], widths[1:]))
-    return nn.Sequential(*[PointLinear(a, b, relu=not (pooled and i == len(pairs) - 1))
+    return nn.Sequential(*[PooledPointLinear(a, b) if pooled and i == len(pairs) - 1 else PointLinear(a, b)
                            for i, (a, b) in enumerate(pairs)])
 
 
@@ -171,7 +102,7 @@ class FPointNetV1(nn.Module):
         """
         one_hot = one_hot.to(points.dtype)
         point_feature = self.seg_point(points)
-        global_feature = torch.cat([pooled_relu(self.seg_global(point_feature)), one_hot], dim=1)
+        global_feature = torch.cat([self.seg_global(point_feature), one_hot], dim=1)
         point_head, seg_dropout, seg_logits_layer = self._seg_head_parts()
         seg_feature = point_head[1:](self._seg_head_first_layer(point_feature, global_feature))
         seg_logits = seg_logits_layer(dropout(seg_feature, seg_dropout.p, share, self.training))
@@ -182,10 +113,10 @@ class FPointNetV1(nn.Module):
         mask_mean = (xyz * mask[..., None]).sum(dim=1) / counts.clamp(min=1)
         object_xyz = gather_object_points(xyz - mask_mean[:, None, :], mask, self.num_object_points, generator, share)
 
-        center_delta = self.tnet_head(torch.cat([pooled_relu(self.tnet_point(object_xyz)), one_hot], dim=1))
+        center_delta = self.tnet_head(torch.cat([self.tnet_point(object_xyz), one_hot], dim=1))
         stage1_center = mask_mean + center_delta
         box_input = object_xyz - center_delta[:, None, :]
-        box = self.box_head(torch.cat([pooled_relu(self.box_point(box_input)), one_hot], dim=1))
+        box = self.box_head(torch.cat([self.box_point(box_input), one_hot], dim=1))
         return {"seg_logits": seg_logits, "mask": mask, "mask_mean": mask_mean, "center_delta": center_delta,
                 "stage1_center": stage1_center, **self.parse_box_output(box, stage1_center)}
 
@@ -202,9 +133,13 @@ class FPointNetV1(nn.Module):
         local = point_feature.shape[-1]
         weight = layer.linear.weight
         per_point = point_feature @ weight[:, :local].T
-        per_frustum = torch.addmm(layer.linear.bias, global_feature, weight[:, local:].T)
-        y = per_point + per_frustum[:, None, :]
-        return torch.relu(batch_norm(layer.norm, y.reshape(-1, y.shape[-1]))).reshape(*y.shape)
+        if layer.leaves_out_bias():
+            y = per_point + (global_feature @ weight[:, local:].T)[:, None, :]
+            normalised = layer.normalise_in_training(y.reshape(-1, y.shape[-1]))
+        else:
+            y = per_point + torch.addmm(layer.linear.bias, global_feature, weight[:, local:].T)[:, None, :]
+            normalised = batch_norm(layer.norm, y.reshape(-1, y.shape[-1]))
+        return torch.relu(normalised).reshape(*y.shape)
 
     def _seg_head_parts(self) -> tuple[nn.Sequential, nn.Dropout, nn.Linear]:
         """The segmentation head's MLP, dropout and logits layer, as __init__ builds them."""

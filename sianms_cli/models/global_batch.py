@@ -19,6 +19,7 @@ the same draws from the same generators, ``nn.BatchNorm1d`` itself.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -57,23 +58,41 @@ def uniform(rows: int, columns: int, share: BatchShare | None, *, generator: tor
 
 
 def dropout(x: torch.Tensor, p: float, share: BatchShare | None, training: bool) -> torch.Tensor:
-    """Inverted dropout: ``x`` times a Bernoulli(1 - p) mask of its shape, drawn as uniform [0, 1)
-    floats from torch's global generator below 1 - p, scaled by 1 / (1 - p). The mask of a share
-    is its rows of the global batch's mask. (``torch.nn.functional.dropout``'s own draws cost
-    6 % of a bfloat16 training step; these, a quarter of that.)"""
+    """Inverted dropout: ``x`` times a Bernoulli(1 - p) mask of its shape (:func:`keep_mask`, from
+    torch's global generator), scaled by 1 / (1 - p). The mask of a share is its rows of the
+    global batch's mask. (``torch.nn.functional.dropout``'s own Bernoulli draws cost 6 % of a
+    bfloat16 training step: docs/performance.md#training-sianms-train.)"""
     if not training or p == 0:
         return x
-    shape = x.shape if share is None else (share.size, *x.shape[1:])
-    keep = torch.rand(shape, device=x.device) < 1 - p
+    keep = keep_mask(x.shape if share is None else (share.size, *x.shape[1:]), 1 - p, x.device)
     if share is not None:
         keep = keep[share.start:share.stop]
-    return x * keep / (1 - p)
+    return x * keep.to(x.dtype).mul_(1 / (1 - p))
+
+
+BITS_PER_DRAW = 31  # an int32 draw of torch's generator is uniform on [0, 2^31): 31 fair bits
+
+
+def keep_mask(shape: tuple[int, ...] | torch.Size, keep: float, device: torch.device) -> torch.Tensor:
+    """Bernoulli(``keep``) booleans of ``shape`` from torch's global generator: at ``keep`` = 0.5
+    one random bit each, 31 to a draw; else one uniform float each, kept below ``keep``."""
+    if keep != 0.5:
+        return torch.rand(shape, device=device) < keep
+    count = math.prod(shape)
+    draws = torch.empty(-(-count // BITS_PER_DRAW), dtype=torch.int32, device=device).random_()
+    bits = draws[:, None] >> torch.arange(BITS_PER_DRAW, dtype=torch.int32, device=device)
+    return (bits & 1).reshape(-1)[:count].reshape(shape).bool()
+
+
+def synchronised(norm: nn.BatchNorm1d) -> bool:
+    """Whether ``norm`` normalises with every rank's rows: in training under a process group of several ranks."""
+    return norm.training and dist.is_available() and dist.is_initialized() and dist.get_world_size() > 1
 
 
 def batch_norm(norm: nn.BatchNorm1d, x: torch.Tensor) -> torch.Tensor:
     """``norm`` on (M, C) rows; in training under a process group of several ranks, with the
     statistics of every rank's rows together (module docstring)."""
-    if not (norm.training and dist.is_available() and dist.is_initialized() and dist.get_world_size() > 1):
+    if not synchronised(norm):
         return norm(x)
     x = x.to(torch.promote_types(x.dtype, torch.float32))  # under autocast, statistics in float32, not bfloat16
     count = torch.full((1,), x.shape[0], dtype=x.dtype, device=x.device)

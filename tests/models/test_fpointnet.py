@@ -1,9 +1,10 @@
-"""models/fpointnet.py: output shapes for several point counts, the masking gather, parameter count."""
+"""models/fpointnet.py: output shapes for several point counts, the masking gather, parameter count,
+the segmentation head's split first layer."""
 
 import pytest
 import torch
 
-from sianms_cli.models.fpointnet import FPointNetV1, PointLinear, gather_object_points, pooled_relu
+from sianms_cli.models.fpointnet import FPointNetV1, gather_object_points
 
 MEAN_SIZES = torch.tensor([[4.6, 1.95, 1.72], [0.73, 0.67, 1.77], [1.70, 0.60, 1.28]])
 
@@ -79,7 +80,7 @@ def test_segmentation_head_is_the_originals_concatenation(model):
     xyz = torch.randn(3, 50, 4, generator=generator).requires_grad_(True)
     one_hot = torch.eye(3)[[0, 1, 2]]
     point_feature = model.seg_point(xyz)
-    global_feature = torch.cat([torch.relu(model.seg_global(point_feature)).amax(dim=1), one_hot.float()], dim=1)
+    global_feature = torch.cat([model.seg_global(point_feature), one_hot.float()], dim=1)
     tiled = global_feature[:, None, :].expand(-1, xyz.shape[1], -1)
     original = model.seg_head(torch.cat([point_feature, tiled], dim=2))
     (original_grad,) = torch.autograd.grad(original.square().sum(), xyz)
@@ -87,26 +88,3 @@ def test_segmentation_head_is_the_originals_concatenation(model):
     (ours_grad,) = torch.autograd.grad(ours.square().sum(), xyz)
     torch.testing.assert_close(ours, original, rtol=1e-5, atol=1e-5)
     torch.testing.assert_close(ours_grad, original_grad, rtol=1e-4, atol=1e-5)
-
-
-@pytest.mark.parametrize("points", [64, 20])  # block-wise search; torch's max where N is no multiple of 16
-def test_pooled_relu_is_the_originals_max_pool_of_relu_outputs(points):
-    """ReLU after the pool instead of before, one maximum per channel taking the gradient: the same
-    values and, with duplicated points (as the gathered object points have), the same weight gradients."""
-    generator = torch.Generator().manual_seed(4)
-    half = torch.randn(3, points // 2, 5, generator=generator, dtype=torch.float64)
-    inputs = torch.cat([half, half.flip(1)], dim=1)  # every point twice
-    layer = PointLinear(5, 40, relu=False).double().train()
-    with torch.no_grad():
-        layer.norm.bias[:20] = -4.0  # these channels' outputs below zero at every point
-    weights = torch.randn(3, 40, generator=generator, dtype=torch.float64)
-
-    def pooled_and_gradients(pool):
-        value = pool(layer(inputs))
-        return (value, *torch.autograd.grad((value * weights).sum(), list(layer.parameters())))
-
-    ours = pooled_and_gradients(pooled_relu)
-    original = pooled_and_gradients(lambda x: torch.relu(x).amax(dim=1))
-    assert (ours[0] == 0).any() and (ours[0] > 0).any()  # channels below zero everywhere, and above
-    for a, b in zip(ours, original):
-        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12)
