@@ -17,8 +17,8 @@ from sianms_cli.models.global_batch import batch_norm, synchronised
 BN_EPSILON = 1e-3  # TF batch_norm's default, which the original trained with
 POOL_BLOCK = 16  # points per block of a max pool: block maxima are a fast reduction, then one block is searched
 # A pooled layer widening its input this many times or more trains through its input's covariance
-# (PooledPointLinear): 128 -> 1,024 is 2.3x faster so; 128 -> 256 and 256 -> 512 are slower so
-# (docs/performance.md#training-sianms-train).
+# (PooledPointLinear): bench/train_step_parts.py measured 128 -> 1,024 1.8-2.8x faster so, and
+# 128 -> 256 and 256 -> 512 0.7x (docs/performance.md#training-sianms-train).
 COVARIANCE_MIN_WIDENING = 4
 
 
