@@ -79,7 +79,7 @@ class PooledPointLinear(PointLinear):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         norm = self.norm
-        if not (self.by_covariance and norm.training and x.shape[0] * x.shape[1] > 1 and not synchronised(norm)):
+        if not (self.by_covariance and self.leaves_out_bias() and x.shape[0] * x.shape[1] > 1):
             return pooled_relu(super().forward(x))
         dtype = torch.get_autocast_dtype(x.device.type) if torch.is_autocast_enabled(x.device.type) else x.dtype
         pooled, mean, variance = _CovariancePool.apply(x, self.linear.weight, norm.weight, norm.bias, norm.eps, dtype)
